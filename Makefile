@@ -1,0 +1,32 @@
+# The two commands of the README. Each creates .venv if missing, installs, then runs.
+#   make demo   trains SimpleNeRF on the built-in synthetic scene, then tests it (metrics + renders)
+#   make test   runs the test suite
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+SHARED ?= $(abspath ../shared)
+# LPIPS needs ImageNet AlexNet weights; the project's shared data has them (else: torch hub cache or a download).
+LPIPS_NPZ := $(SHARED)/data/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz
+export SIMPLENERF_LPIPS_WEIGHTS ?= $(if $(wildcard $(LPIPS_NPZ)),$(LPIPS_NPZ),)
+export SIMPLENERF_SHARED ?= $(SHARED)
+
+.PHONY: setup demo test
+
+$(VENV)/.installed: pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	# torch first and pinned: the CPU wheel; an unpinned resolve would pull CUDA packages.
+	$(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e '.[dev]'
+	# lpips only for its v0.1 linear heads; --no-deps because it requires torchvision.
+	$(PY) -m pip install -q --no-deps lpips==0.1.4
+	touch $@
+
+setup: $(VENV)/.installed
+
+demo: $(VENV)/.installed
+	$(PY) -m simplenerf fit --config configs/demo.yaml
+	$(PY) -m simplenerf test --config configs/demo.yaml --ckpt_path last
+
+test: $(VENV)/.installed
+	$(PY) -m pytest -q

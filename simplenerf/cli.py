@@ -1,0 +1,70 @@
+"""`python -m simplenerf {fit,validate,test,predict} --config ...`: LightningCLI with the project's defaults.
+
+Defaults every run gets: W&B logging (offline without credentials), a rich progress bar with rays/s, learning-rate
+logging, checkpoints under `<trainer.default_root_dir>/checkpoints` (resume with `--ckpt_path last`) and the
+evaluation callback (`--evaluation.*`) that writes test metrics and renders.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from jsonargparse import lazy_instance
+from lightning.pytorch import LightningDataModule
+from lightning.pytorch.callbacks import LearningRateMonitor, RichProgressBar
+from lightning.pytorch.cli import LightningCLI
+
+from simplenerf.callbacks import Checkpointing, RaysPerSecond
+from simplenerf.errors import SimpleNeRFError
+from simplenerf.evaluation import Evaluator
+from simplenerf.loggers import WandbLogger
+from simplenerf.lpips import LPIPSWeightsNotFound
+from simplenerf.module import SimpleNeRF
+
+
+class SimpleNeRFCLI(LightningCLI):
+    def add_arguments_to_parser(self, parser) -> None:
+        parser.add_lightning_class_args(Checkpointing, "checkpoint")
+        parser.add_lightning_class_args(Evaluator, "evaluation")
+        parser.link_arguments(
+            "trainer.default_root_dir", "checkpoint.dirpath", compute_fn=lambda root: os.path.join(root, "checkpoints")
+        )
+
+
+    def _run_subcommand(self, subcommand: str) -> None:
+        # Bad input (a missing scene, missing LPIPS weights) stops here, before loggers or outputs are created.
+        if hasattr(self.datamodule, "check_inputs"):
+            self.datamodule.check_inputs()
+        for callback in self.trainer.callbacks:
+            if hasattr(callback, "check_inputs"):
+                callback.check_inputs(subcommand)
+        super()._run_subcommand(subcommand)
+
+
+def trainer_defaults() -> dict:
+    return {
+        "default_root_dir": "runs/default",
+        "max_steps": 100000,
+        "logger": lazy_instance(WandbLogger),
+        "callbacks": [RichProgressBar(), RaysPerSecond(), LearningRateMonitor(logging_interval="step")],
+        "check_val_every_n_epoch": None,
+        "val_check_interval": 5000,
+        "num_sanity_val_steps": 0,
+    }
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point; bad input ends with one `error:` line and exit status 2 instead of a traceback."""
+    try:
+        SimpleNeRFCLI(
+            SimpleNeRF,
+            LightningDataModule,
+            subclass_mode_data=True,
+            trainer_defaults=trainer_defaults(),
+            save_config_kwargs={"overwrite": True},
+            args=args,
+        )
+    except (SimpleNeRFError, LPIPSWeightsNotFound) as e:
+        print(f"simplenerf: error: {e}", file=sys.stderr)
+        sys.exit(2)

@@ -1,0 +1,75 @@
+"""Volume rendering with the conventions of the authors' release (paper Sec. 3, SPEC 2).
+
+Naming: t = NDC sample positions [R, S]; delta = interval lengths; sigma = density; alpha = 1 - exp(-sigma delta);
+T = transmittance; w = weights = alpha T. Depth is always metric camera-z depth (see `rays.ndc_to_metric_t`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass
+class RenderOutputs:
+    """What one field renders along a batch of rays."""
+
+    rgb: torch.Tensor  # [R, 3]
+    depth: torch.Tensor  # [R] metric depth, normalised by accumulation
+    accumulation: torch.Tensor  # [R] sum of weights
+    weights: torch.Tensor  # [R, S]
+
+
+def deltas(t: torch.Tensor, ndc_directions: torch.Tensor) -> torch.Tensor:
+    """Interval lengths in NDC space.
+
+    delta_i = (t_{i+1} - t_i) |d_ndc|; the last interval runs to t = 1 (infinity in NDC), not 1e10.
+
+    Args:
+        t: [R, S] sorted, in [0, 1]. ndc_directions: [R, 3].
+
+    Returns:
+        [R, S].
+    """
+    dt = torch.cat([t[:, 1:] - t[:, :-1], 1.0 - t[:, -1:]], dim=-1)
+    return dt * torch.linalg.vector_norm(ndc_directions, dim=-1, keepdim=True)
+
+
+def density(raw: torch.Tensor, noise_std: float, generator: torch.Generator | None = None) -> torch.Tensor:
+    """sigma = ReLU(raw + noise), noise ~ N(0, noise_std^2) (training only: pass 0 at test)."""
+    if noise_std > 0:
+        raw = raw + noise_std * torch.randn(raw.shape, device=raw.device, dtype=raw.dtype, generator=generator)
+    return torch.relu(raw)
+
+
+def compute_weights(sigma: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+    """w_i = alpha_i prod_{j<i} (1 - alpha_j + 1e-10).
+
+    Args:
+        sigma, delta: [R, S].
+
+    Returns:
+        w [R, S].
+    """
+    alpha = 1.0 - torch.exp(-sigma * delta)
+    transmittance = torch.cumprod(1.0 - alpha + 1e-10, dim=-1)
+    transmittance = torch.cat([torch.ones_like(transmittance[:, :1]), transmittance[:, :-1]], dim=-1)
+    return alpha * transmittance
+
+
+def composite(w: torch.Tensor, rgb: torch.Tensor, t_metric: torch.Tensor) -> RenderOutputs:
+    """Colour, depth and accumulation from weights.
+
+    depth = sum(w t_metric) / (sum(w) + 1e-6): the expected termination depth among the rays that terminate.
+
+    Args:
+        w: [R, S]. rgb: [R, S, 3]. t_metric: [R, S].
+    """
+    acc = w.sum(-1)
+    return RenderOutputs(
+        rgb=(w[..., None] * rgb).sum(-2),
+        depth=(w * t_metric).sum(-1) / (acc + 1e-6),
+        accumulation=acc,
+        weights=w,
+    )

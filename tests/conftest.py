@@ -1,0 +1,35 @@
+"""Shared fixtures: the read-only project data (../shared) and a small generated synthetic scene."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from simplenerf.data.synthetic import make_synthetic_scene
+
+REPO = Path(__file__).resolve().parents[1]
+
+# Tests never talk to W&B servers and keep its console output short.
+os.environ.setdefault("WANDB_MODE", "offline")
+os.environ.setdefault("WANDB_SILENT", "true")
+
+
+def shared_dir() -> Path:
+    """The project's shared data: $SIMPLENERF_SHARED, else ../shared next to the repository."""
+    return Path(os.environ.get("SIMPLENERF_SHARED", REPO.parent / "shared"))
+
+
+def require_shared(relative: str) -> Path:
+    """A path under the shared data, or skip the test saying what is missing."""
+    path = shared_dir() / relative
+    if not path.exists():
+        pytest.skip(f"needs {path} (set SIMPLENERF_SHARED to the folder holding data/)")
+    return path
+
+
+@pytest.fixture(scope="session")
+def synthetic_scene(tmp_path_factory) -> Path:
+    """A 20-frame synthetic scene at 48x64 (factor 1) with exact depth."""
+    return make_synthetic_scene(tmp_path_factory.mktemp("synthetic") / "scene", height=48, width=64, n_frames=20)

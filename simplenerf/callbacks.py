@@ -57,3 +57,38 @@ class Checkpointing(ModelCheckpoint):
     def on_exception(self, trainer, pl_module, exception: BaseException) -> None:
         if trainer.state.fn == "fit" and self.dirpath is not None and trainer.global_step > 0:
             trainer.save_checkpoint(f"{self.dirpath}/last.ckpt")
+
+
+class LossWeightSchedule(L.Callback):
+    """Step-dependent loss weights as data: piecewise-constant schedules set before every training step.
+
+    `schedules` maps a loss name of the module's `loss_weights` to [[step, value], ...]: from each listed step on,
+    the weight is its value (before the first listed step the module's own weight stays). The paper's warm-up is
+    {points: [[0, 0.0], [10000, 0.1]], views: ..., cfc: ...}. Each scheduled weight is logged as train_params/<name>.
+    """
+
+    def __init__(self, schedules: dict[str, list[tuple[int, float]]]) -> None:
+        """
+        Args:
+            schedules: loss name -> [[step, weight], ...] in increasing step order.
+        """
+        for name, points in schedules.items():
+            steps = [step for step, _ in points]
+            if steps != sorted(steps):
+                raise ValueError(f"schedule of {name!r} must list steps in increasing order, got {steps}")
+        self.schedules = schedules
+
+    def value(self, name: str, step: int, default: float) -> float:
+        """The weight of `name` at `step`."""
+        current = default
+        for start, value in self.schedules[name]:
+            if step >= start:
+                current = value
+        return current
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        for name in self.schedules:
+            if name not in pl_module.loss_weights:
+                raise KeyError(f"scheduled loss {name!r} is not one of {sorted(pl_module.loss_weights)}")
+            pl_module.loss_weights[name] = self.value(name, trainer.global_step, pl_module.loss_weights[name])
+            pl_module.log(f"train_params/{name}", pl_module.loss_weights[name])

@@ -17,3 +17,13 @@ def color_loss(renders: Sequence[RenderOutputs], target: torch.Tensor) -> torch.
         target: [R, 3] ground-truth colours.
     """
     return sum(torch.mean((r.rgb - target) ** 2) for r in renders)
+
+
+def sparse_depth_loss(renders: Sequence[RenderOutputs], depth: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """L_sd = sum over the given renders of weight * ||z - z_hat||^2 (mean over rays), z_hat the SfM depth.
+
+    Args:
+        renders: outputs at the sparse-depth rays of the main fine field and of each augmentation (not main coarse).
+        depth: [R] SfM depths. weight: [R] per-point weights (ones unless DS-NeRF's weighting is on).
+    """
+    return sum(torch.mean(weight * (r.depth - depth) ** 2) for r in renders)

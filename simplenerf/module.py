@@ -9,7 +9,7 @@ from __future__ import annotations
 import lightning as L
 import torch
 
-from simplenerf.losses import color_loss
+from simplenerf.losses import color_loss, sparse_depth_loss
 from simplenerf.metrics import psnr
 from simplenerf.nerf import NeRF
 from simplenerf.rays import RayBundle
@@ -22,6 +22,7 @@ class SimpleNeRF(L.LightningModule):
         self,
         nerf: NeRF,
         color_weight: float = 1.0,
+        sparse_depth_weight: float = 0.1,
         lr: float = 5e-4,
         lr_decay_rate: float = 0.1,
         lr_decay_steps: int = 250000,
@@ -31,6 +32,8 @@ class SimpleNeRF(L.LightningModule):
         Args:
             nerf: the main model (coarse and fine fields, sampling, rendering).
             color_weight: lambda_1, weight of the colour loss.
+            sparse_depth_weight: lambda_2, weight of DS-NeRF's sparse-depth loss (used when the data module serves
+                sparse-depth rays, `sparse_rays_per_batch` > 0).
             lr: initial Adam learning rate.
             lr_decay_rate: the learning rate is lr * lr_decay_rate ** (step / lr_decay_steps). The authors' release
                 uses 0.1 over 250000 steps (ends near 2e-4 at 100k; the published scores); the paper's text,
@@ -42,15 +45,23 @@ class SimpleNeRF(L.LightningModule):
         self.save_hyperparameters(ignore=["nerf"])
         self.nerf = nerf
 
+        self.loss_weights = {"color": color_weight, "sparse_depth": sparse_depth_weight}
+
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         rays = RayBundle.from_batch(batch)
+        n = len(rays)  # random rays first, then the sparse-depth rays, rendered in one pass
+        has_sparse = "sparse_depth" in batch
+        if has_sparse:
+            rays = rays.cat(RayBundle.from_batch(batch, prefix="sparse_"))
         out = self.nerf(rays, randomized=True)
-        loss_color = color_loss([out.coarse, out.fine], batch["rgb"])
-        loss = self.hparams.color_weight * loss_color
-        self.log_dict(
-            {"train/loss": loss, "train/loss_color": loss_color, "train/psnr_fine": psnr_of_mse(out, batch)},
-            prog_bar=False,
-        )
+
+        losses = {"color": color_loss([out.coarse[:n], out.fine[:n]], batch["rgb"])}
+        if has_sparse:
+            losses["sparse_depth"] = sparse_depth_loss([out.fine[n:]], batch["sparse_depth"], batch["sparse_weight"])
+        loss = sum(self.loss_weights[name] * value for name, value in losses.items())
+
+        self.log_dict({f"train/loss_{name}": value for name, value in losses.items()})
+        self.log_dict({"train/loss": loss, "train/psnr_fine": psnr_of_mse(out.fine[:n].rgb, batch["rgb"])})
         self.log("loss", loss, prog_bar=True, logger=False)
         return loss
 
@@ -80,6 +91,6 @@ class SimpleNeRF(L.LightningModule):
 
 
 @torch.no_grad()
-def psnr_of_mse(out, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-    """Training PSNR of the fine colour (float, not 8-bit: a progress signal, not an evaluation metric)."""
-    return -10.0 * torch.log10(torch.mean((out.fine.rgb - batch["rgb"]) ** 2))
+def psnr_of_mse(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Training PSNR (float, not 8-bit: a progress signal, not an evaluation metric)."""
+    return -10.0 * torch.log10(torch.mean((rgb - target) ** 2))

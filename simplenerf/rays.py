@@ -36,6 +36,10 @@ class RayBundle:
     def __getitem__(self, index: slice | torch.Tensor) -> RayBundle:
         return RayBundle(*(getattr(self, f.name)[index] for f in fields(self)))
 
+    def cat(self, other: RayBundle) -> RayBundle:
+        """These rays followed by `other`'s."""
+        return RayBundle(*(torch.cat([getattr(self, f.name), getattr(other, f.name)]) for f in fields(self)))
+
     @classmethod
     def from_batch(cls, batch: dict[str, torch.Tensor], prefix: str = "") -> RayBundle:
         """Collects the fields of a data-module batch (keys `{prefix}origins`, ...)."""

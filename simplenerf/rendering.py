@@ -20,6 +20,10 @@ class RenderOutputs:
     accumulation: torch.Tensor  # [R] sum of weights
     weights: torch.Tensor  # [R, S]
 
+    def __getitem__(self, index: slice) -> RenderOutputs:
+        """The outputs of a subset of the rays."""
+        return RenderOutputs(self.rgb[index], self.depth[index], self.accumulation[index], self.weights[index])
+
 
 def deltas(t: torch.Tensor, ndc_directions: torch.Tensor) -> torch.Tensor:
     """Interval lengths in NDC space.

@@ -7,7 +7,9 @@ import pytest
 from simplenerf.cli import SimpleNeRFCLI, trainer_defaults
 from simplenerf.module import SimpleNeRF
 
-CONFIGS = sorted((Path(__file__).resolve().parents[1] / "configs").rglob("*.yaml"))
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+OVERRIDES = sorted((CONFIG_DIR / "overrides").rglob("*.yaml"))  # partial: added after a complete config
+CONFIGS = sorted(p for p in CONFIG_DIR.rglob("*.yaml") if p not in OVERRIDES)  # complete configs
 
 
 class ParseOnlyCLI(SimpleNeRFCLI):
@@ -16,6 +18,7 @@ class ParseOnlyCLI(SimpleNeRFCLI):
 
 
 def parse(config: Path, *extra: str):
+    """The parsed config of `config` (+ extra CLI arguments, e.g. more --config files)."""
     from lightning.pytorch import LightningDataModule
 
     cli = ParseOnlyCLI(  # args given explicitly: pytest's own argv must not be parsed
@@ -27,14 +30,32 @@ def parse(config: Path, *extra: str):
 
 def test_there_are_configs():
     names = {c.name for c in CONFIGS}
-    assert {"llff.yaml", "demo.yaml"} <= names
+    assert {"llff.yaml", "dsnerf.yaml", "demo.yaml"} <= names
 
 
-@pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.name)
+@pytest.mark.parametrize("config", CONFIGS, ids=lambda p: str(p.relative_to(CONFIG_DIR)))
 def test_config_parses(config):
     cfg = parse(config)
     assert cfg.data.class_path.startswith("simplenerf.")
     assert cfg.trainer.max_steps > 0
+
+
+@pytest.mark.parametrize("override", OVERRIDES, ids=lambda p: str(p.relative_to(CONFIG_DIR)))
+def test_override_parses_on_top_of_the_paper_config(override):
+    cfg = parse(CONFIG_DIR / "llff.yaml", "--config", str(override))
+    if override.parent.name == "views":
+        assert cfg.data.init_args.n_views == int(override.stem)
+
+
+def test_dsnerf_is_the_paper_config_plus_sparse_depth():
+    llff, dsnerf = parse(CONFIG_DIR / "llff.yaml").as_dict(), parse(CONFIG_DIR / "dsnerf.yaml").as_dict()
+    assert dsnerf["data"]["init_args"]["sparse_rays_per_batch"] == 2048
+    assert dsnerf["model"]["sparse_depth_weight"] == 0.1
+    dsnerf["data"]["init_args"]["sparse_rays_per_batch"] = llff["data"]["init_args"]["sparse_rays_per_batch"]
+    for section in ("trainer", "checkpoint"):  # run folders differ by design
+        dsnerf[section], llff[section] = None, None
+    dsnerf["config"], llff["config"] = None, None
+    assert dsnerf == llff
 
 
 def test_paper_config_keeps_paper_settings():

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import urllib.error
 from pathlib import Path
 
@@ -13,28 +12,19 @@ import torch
 
 from simplenerf import lpips as lpips_module
 from simplenerf.lpips import ALEXNET_FILENAME, LPIPS, WEIGHTS_ENV, LPIPSWeightsNotFound
+from tests.conftest import require_shared
 
 # Values printed by the reference implementation's test script for net='alex', version 0.1.
 PUBLISHED = {"ex_p0": 0.7219, "ex_p1": 0.1376}
 
 
-def _shared_dir() -> Path:
-    env = os.environ.get("SIMPLENERF_SHARED")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared"
-
-
 def _npz_path() -> Path:
-    path = _shared_dir() / "data" / "lpips" / "alexnet_trunk_and_lpips_lin_v0.1.npz"
-    if not path.is_file():
-        pytest.skip(f"shared LPIPS weights not found at {path} (set SIMPLENERF_SHARED to the shared folder)")
-    return path
+    return require_shared("data/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz")
 
 
 def _read_example(name: str) -> torch.Tensor:
     """[1, 3, H, W] RGB in [0, 1]."""
-    path = _shared_dir() / "data" / "lpips" / "examples" / f"{name}.png"
-    if not path.is_file():
-        pytest.skip(f"LPIPS example image not found at {path}")
+    path = require_shared(f"data/lpips/examples/{name}.png")
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
     rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
     return torch.from_numpy(rgb).permute(2, 0, 1)[None].float() / 255.0

@@ -8,7 +8,6 @@ model (simplenerf.rays), which catches any half-pixel or axis mistake in the con
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -28,14 +27,10 @@ from simplenerf.sparse_depth import (
     compute_sparse_depth,
     load_or_compute_sparse_depth,
 )
+from tests.conftest import require_shared
 
 # SIFT needs more pixels than the 48x64 default test scene: at 240x320 it finds a few hundred points per view pair.
 HEIGHT, WIDTH = 240, 320
-
-
-def _shared_dir() -> Path:
-    env = os.environ.get("SIMPLENERF_SHARED")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared"
 
 
 def _uint8(images: torch.Tensor) -> list[np.ndarray]:
@@ -202,9 +197,7 @@ def test_cache_round_trip(synthetic: dict, tmp_path: Path, monkeypatch: pytest.M
 
 
 def test_fern_two_views_images_8_yield_points() -> None:
-    fern = _shared_dir() / "data" / "nerf_llff_data" / "fern"
-    if not (fern / "images_8").is_dir():
-        pytest.skip(f"LLFF fern not found at {fern} (set SIMPLENERF_SHARED to the folder holding data/)")
+    fern = require_shared("data/nerf_llff_data/fern")
     scene = load_llff_scene(fern, factor=8, n_views=2)
     assert scene.split.train == [6, 13]
     views = subset(scene.views, scene.split.train)

@@ -1,0 +1,47 @@
+"""Depth error of a trained model at held-out SfM points (see simplenerf.sfm_reference), e.g.
+
+    python tools/heldout_depth_error.py --config configs/dsnerf.yaml --ckpt runs/dsnerf/checkpoints/last.ckpt \
+        -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.factor 8
+
+Everything after `--` is passed to the CLI as overrides. Prints one JSON line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import torch
+from lightning.pytorch import LightningDataModule
+
+from simplenerf.cli import SimpleNeRFCLI, trainer_defaults
+from simplenerf.module import SimpleNeRF
+from simplenerf.sfm_reference import heldout_depth_error, heldout_observations
+
+
+def main() -> None:
+    argv = sys.argv[1:]
+    overrides = argv[argv.index("--") + 1 :] if "--" in argv else []
+    own = argv[: argv.index("--")] if "--" in argv else argv
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", required=True)
+    parser.add_argument("--ckpt", required=True, help="checkpoint of the trained model")
+    parser.add_argument("--cache", default="data/cache/sparse_depth", help="where the SfM reference is cached")
+    args = parser.parse_args(own)
+    cli = SimpleNeRFCLI(
+        SimpleNeRF, LightningDataModule, subclass_mode_data=True, trainer_defaults=trainer_defaults(), run=False,
+        args=["--config", args.config, "--trainer.logger", "false", *overrides],
+    )
+    dm = cli.datamodule
+    dm.setup("test")
+    model = cli.model
+    model.load_state_dict(torch.load(args.ckpt, map_location="cpu", weights_only=False)["state_dict"])
+    model.eval()
+    observations = heldout_observations(dm.scene, args.cache, str(dm.scene_dir.resolve()))
+    result = heldout_depth_error(model.nerf, dm.scene, observations, dm.near, model.hparams.chunk)
+    print(json.dumps({"ckpt": args.ckpt, "overrides": overrides, **result}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,31 @@
+"""Computes and caches the sparse (SfM) depth of a config's training views, so that `fit` starts at once, e.g.
+
+    python tools/precompute_sparse_depth.py --config configs/dsnerf.yaml \
+        --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.n_views 2
+
+Takes the same arguments as `python -m simplenerf fit`; prints the points and reprojection error per view.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from lightning.pytorch import LightningDataModule
+
+from simplenerf.cli import SimpleNeRFCLI, trainer_defaults
+from simplenerf.module import SimpleNeRF
+
+
+def main() -> None:
+    cli = SimpleNeRFCLI(
+        SimpleNeRF, LightningDataModule, subclass_mode_data=True, trainer_defaults=trainer_defaults(), run=False,
+        args=[*sys.argv[1:], "--trainer.logger", "false"],
+    )
+    dm = cli.datamodule
+    if not getattr(dm, "sparse_rays_per_batch", 0):
+        sys.exit("this config does not use sparse depth (data.init_args.sparse_rays_per_batch is 0)")
+    dm.setup("fit")  # computes (or finds) the cache and prints a line per view
+
+
+if __name__ == "__main__":
+    main()

@@ -6,13 +6,18 @@ with the terms that are configured; evaluation (metrics, files) is the `evaluati
 
 from __future__ import annotations
 
+from typing import Literal
+
 import lightning as L
 import torch
+from torch import nn
 
+from simplenerf.augmentations import Augmentation
 from simplenerf.losses import color_loss, sparse_depth_loss
 from simplenerf.metrics import psnr
 from simplenerf.nerf import NeRF
 from simplenerf.rays import RayBundle
+from simplenerf.reliability import MaskContext, ReliabilityMask, mask_fractions, masked_depth_loss, nearest_views
 
 
 class SimpleNeRF(L.LightningModule):
@@ -21,8 +26,13 @@ class SimpleNeRF(L.LightningModule):
     def __init__(
         self,
         nerf: NeRF,
+        augmentations: list[Augmentation] | None = None,
+        coarse_fine_mask: ReliabilityMask | None = None,
+        supervision: Literal["bidirectional", "one_way"] = "bidirectional",
         color_weight: float = 1.0,
         sparse_depth_weight: float = 0.1,
+        coarse_fine_weight: float = 0.1,
+        coarse_fine_on_sparse_rays: bool = False,
         lr: float = 5e-4,
         lr_decay_rate: float = 0.1,
         lr_decay_steps: int = 250000,
@@ -31,9 +41,18 @@ class SimpleNeRF(L.LightningModule):
         """
         Args:
             nerf: the main model (coarse and fine fields, sampling, rendering).
+            augmentations: simplified fields trained beside the main model (points and views in the paper); each
+                adds its colour and sparse-depth losses and a masked depth loss `loss_weights[name]` with the main
+                model. Empty: no augmentation (DS-NeRF when sparse depth is on).
+            coarse_fine_mask: reliability mask of the coarse-fine consistency loss L_cfc; None disables L_cfc.
+            supervision: `bidirectional`: where the mask is -1 the other depth is trained toward the main one (the
+                paper's equations); `one_way`: only mask +1 rays train the main depth (what the release trains).
             color_weight: lambda_1, weight of the colour loss.
             sparse_depth_weight: lambda_2, weight of DS-NeRF's sparse-depth loss (used when the data module serves
                 sparse-depth rays, `sparse_rays_per_batch` > 0).
+            coarse_fine_weight: lambda_5, weight of L_cfc (a warm-up schedule may override it per step).
+            coarse_fine_on_sparse_rays: the release also adds an unmasked (z_coarse - sg(z_fine))^2 on the
+                sparse-depth rays to L_cfc.
             lr: initial Adam learning rate.
             lr_decay_rate: the learning rate is lr * lr_decay_rate ** (step / lr_decay_steps). The authors' release
                 uses 0.1 over 250000 steps (ends near 2e-4 at 100k; the published scores); the paper's text,
@@ -42,28 +61,62 @@ class SimpleNeRF(L.LightningModule):
             chunk: rays per forward pass when rendering full frames (bounds memory, not results).
         """
         super().__init__()
-        self.save_hyperparameters(ignore=["nerf"])
+        self.save_hyperparameters(ignore=["nerf", "augmentations", "coarse_fine_mask"])
         self.nerf = nerf
+        self.augmentations = nn.ModuleList(augmentations or [])
+        self.coarse_fine_mask = coarse_fine_mask
+        names = [aug.name for aug in self.augmentations]
+        if len(set(names)) != len(names) or {"color", "sparse_depth", "cfc"} & set(names):
+            raise ValueError(f"augmentation names must be unique and not color/sparse_depth/cfc, got {names}")
+        # lambda_1 .. lambda_5 by loss name; `callbacks.LossWeightSchedule` changes them per step (the warm-up).
+        self.loss_weights = {"color": color_weight, "sparse_depth": sparse_depth_weight, "cfc": coarse_fine_weight}
+        self.loss_weights.update({aug.name: aug.depth_weight for aug in self.augmentations})
+        self.train_views: tuple[torch.Tensor, ...] | None = None  # images, intrinsics, c2w, nearest (for masks)
 
-        self.loss_weights = {"color": color_weight, "sparse_depth": sparse_depth_weight}
+    def on_fit_start(self) -> None:
+        if self.augmentations or self.coarse_fine_mask is not None:
+            views = self.trainer.datamodule.train_views
+            self.train_views = tuple(t.to(self.device) for t in (views.images, views.intrinsics, views.c2w))
+            self.train_views += (nearest_views(self.train_views[2]),)
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         rays = RayBundle.from_batch(batch)
-        n = len(rays)  # random rays first, then the sparse-depth rays, rendered in one pass
+        n = len(rays)  # random rays first, then the sparse-depth rays, all rendered in one pass
         has_sparse = "sparse_depth" in batch
         if has_sparse:
             rays = rays.cat(RayBundle.from_batch(batch, prefix="sparse_"))
-        out = self.nerf(rays, randomized=True)
+        main = self.nerf(rays, randomized=True)
+        augmented = [aug.render(self.nerf, main, randomized=True) for aug in self.augmentations]
 
-        losses = {"color": color_loss([out.coarse[:n], out.fine[:n]], batch["rgb"])}
-        if has_sparse:
-            losses["sparse_depth"] = sparse_depth_loss([out.fine[n:]], batch["sparse_depth"], batch["sparse_weight"])
+        # L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc (paper Sec. 4.4)
+        renders = [main.coarse, main.fine, *augmented]
+        losses = {"color": color_loss([r[:n] for r in renders], batch["rgb"])}
+        if has_sparse:  # not on the main coarse depth
+            sparse = [r[n:] for r in renders[1:]]
+            losses["sparse_depth"] = sparse_depth_loss(sparse, batch["sparse_depth"], batch["sparse_weight"])
+        for aug, aug_out in zip(self.augmentations, augmented, strict=True):
+            if self.loss_weights[aug.name] > 0:  # free before the warm-up ends
+                tied = aug.main_output(main)[:n]
+                losses[aug.name] = self.depth_supervision(aug.name, aug.mask, batch, tied, aug_out[:n])
+        if self.coarse_fine_mask is not None and self.loss_weights["cfc"] > 0:
+            losses["cfc"] = self.depth_supervision("cfc", self.coarse_fine_mask, batch, main.coarse[:n], main.fine[:n])
+            if has_sparse and self.hparams.coarse_fine_on_sparse_rays:
+                losses["cfc"] = losses["cfc"] + torch.mean((main.coarse.depth[n:] - main.fine.depth[n:].detach()) ** 2)
         loss = sum(self.loss_weights[name] * value for name, value in losses.items())
 
         self.log_dict({f"train/loss_{name}": value for name, value in losses.items()})
-        self.log_dict({"train/loss": loss, "train/psnr_fine": psnr_of_mse(out.fine[:n].rgb, batch["rgb"])})
+        self.log_dict({"train/loss": loss, "train/psnr_fine": psnr_of_mse(main.fine[:n].rgb, batch["rgb"])})
         self.log("loss", loss, prog_bar=True, logger=False)
         return loss
+
+    def depth_supervision(self, name: str, mask: ReliabilityMask, batch: dict, main, other) -> torch.Tensor:
+        """The masked depth loss between a main render and another one (augmentation, or fine for L_cfc)."""
+        assert self.train_views is not None, "on_fit_start did not run"
+        context = MaskContext.from_batch(*self.train_views, batch)
+        m = mask(context, main.depth.detach(), other.depth.detach())
+        if m is not None:
+            self.log_dict({f"train/mask_{name}/{k}": v for k, v in mask_fractions(m).items()})
+        return masked_depth_loss(main.depth, other.depth, m, self.hparams.supervision)
 
     def render_frame(self, batch: dict) -> dict[str, torch.Tensor]:
         """Deterministic full-frame render: rgb [H, W, 3], depth [H, W], accumulation [H, W], coarse_depth [H, W]."""

@@ -120,3 +120,17 @@ def test_print_config_is_commented_and_reloadable(tmp_path):
 def test_help_shows_argument_docs():
     out = run("fit", "--help").stdout
     assert "lambda_1, weight of the colour loss" in out
+
+
+def test_user_augmentation_plugs_in_by_class_path(tmp_path):
+    override = tmp_path / "user_aug.yaml"
+    override.write_text(
+        "model:\n"
+        "  augmentations:\n"
+        "    - class_path: tests.custom_augmentation.LowPassPointsAugmentation\n"
+        "      init_args: {bands: 2, width: 16, num_layers: 2}\n"
+        "  coarse_fine_mask: {class_path: simplenerf.reliability.PatchReprojectionMask}\n"
+    )
+    run("fit", *run_args(tmp_path), "--config", str(override), "--trainer.max_steps", "2")
+    state = torch.load(tmp_path / "run/checkpoints/last.ckpt", map_location="cpu", weights_only=False)["state_dict"]
+    assert state["augmentations.0.field.trunk.0.weight"].shape == (16, 15)  # gamma(p, 0, 2): 15 inputs

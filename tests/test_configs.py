@@ -47,14 +47,15 @@ def test_override_parses_on_top_of_the_paper_config(override):
         assert cfg.data.init_args.n_views == int(override.stem)
 
 
-def test_dsnerf_is_the_paper_config_plus_sparse_depth():
+def test_dsnerf_is_simplenerf_without_its_regularisers():
     llff, dsnerf = parse(CONFIG_DIR / "llff.yaml").as_dict(), parse(CONFIG_DIR / "dsnerf.yaml").as_dict()
     assert dsnerf["data"]["init_args"]["sparse_rays_per_batch"] == 2048
     assert dsnerf["model"]["sparse_depth_weight"] == 0.1
-    dsnerf["data"]["init_args"]["sparse_rays_per_batch"] = llff["data"]["init_args"]["sparse_rays_per_batch"]
-    for section in ("trainer", "checkpoint"):  # run folders differ by design
+    assert len(llff["model"]["augmentations"]) == 2 and llff["model"]["coarse_fine_mask"] is not None
+    for key in ("augmentations", "coarse_fine_mask"):
+        llff["model"][key] = dsnerf["model"][key]
+    for section in ("trainer", "checkpoint", "config"):  # run folders and the warm-up callback differ by design
         dsnerf[section], llff[section] = None, None
-    dsnerf["config"], llff["config"] = None, None
     assert dsnerf == llff
 
 
@@ -71,3 +72,50 @@ def test_unknown_key_is_rejected(capsys):
     with pytest.raises(SystemExit) as exit_info:
         parse(CONFIGS[0], "--model.no_such_option", "1")
     assert exit_info.value.code != 0
+
+
+def flatten(tree, prefix=""):
+    """{"a.b.0.c": leaf, ...} of a nested dict/list config."""
+    if isinstance(tree, dict):
+        return {k: v for key, sub in tree.items() for k, v in flatten(sub, f"{prefix}{key}.").items()}
+    if isinstance(tree, list):
+        return {k: v for i, sub in enumerate(tree) for k, v in flatten(sub, f"{prefix}{i}.").items()}
+    return {prefix.rstrip("."): tree}
+
+
+ABLATIONS = {
+    # file: (augmentation names, their stages, what may differ from the paper config)
+    "no_points_aug": (["views"], None),
+    "no_views_aug": (["points"], None),
+    "no_coarse_fine": (["points", "views", "points_fine", "views_fine"], None),
+    "no_reliable_depth": (["points", "views"], "TrustAll"),
+    "identical_aug": (["points", "views"], None),
+    "smaller_network": (["points", "views"], None),
+}
+
+
+@pytest.mark.parametrize("name", sorted(ABLATIONS))
+def test_ablation_changes_only_what_it_ablates(name):
+    paper = parse(CONFIG_DIR / "llff.yaml").as_dict()
+    ablated = parse(CONFIG_DIR / "llff.yaml", "--config", str(CONFIG_DIR / "overrides/ablations" / f"{name}.yaml"))
+    ablated = ablated.as_dict()
+    names, mask = ABLATIONS[name]
+    assert [a["init_args"]["name"] for a in ablated["model"]["augmentations"]] == names
+    paper_flat, ablated_flat = flatten(paper), flatten(ablated)
+    changed = {k for k in paper_flat.keys() | ablated_flat.keys() if paper_flat.get(k) != ablated_flat.get(k)}
+    changed -= {"config.0", "config.1"}
+    allowed = ("model.augmentations.", "model.coarse_fine_mask", "trainer.callbacks.")
+    assert changed and all(k.startswith(allowed) for k in changed), sorted(changed)
+    augs = ablated["model"]["augmentations"]
+    fields = [a["init_args"]["field"]["init_args"] for a in augs]
+    if name == "identical_aug":
+        assert all(f == fields[0] for f in fields)
+        assert fields[0]["density_bands"] is None and fields[0]["view_dependent"]
+    if name == "smaller_network":
+        assert fields[0]["num_layers"] == 4 and fields[0]["density_bands"] is None
+    if name == "no_coarse_fine":
+        assert ablated["model"]["coarse_fine_mask"] is None
+        assert [a["init_args"]["stage"] for a in augs] == ["coarse", "coarse", "fine", "fine"]
+    if mask:
+        assert all(a["init_args"]["mask"]["class_path"].endswith(mask) for a in augs)
+        assert ablated["model"]["coarse_fine_mask"]["class_path"].endswith(mask)

@@ -51,3 +51,94 @@ def test_without_sparse_rays_only_colour_counts(batch, monkeypatch):
     plain = {k: v for k, v in batch.items() if not k.startswith("sparse_")}
     loss = model.training_step(plain, 0)
     assert "train/loss_sparse_depth" not in logged and torch.allclose(loss, logged["train/loss_color"])
+
+
+def simplenerf_module(supervision: str = "bidirectional", **weights) -> SimpleNeRF:
+    from simplenerf.augmentations import Augmentation
+    from simplenerf.fields import RadianceField
+    from simplenerf.reliability import PatchReprojectionMask
+
+    torch.manual_seed(0)
+    size = {"num_layers": 2, "width": 16, "skip_layer": 1}
+    augs = [
+        Augmentation("points", RadianceField(density_bands=3, residual_bands_to_color=True, **size),
+                     PatchReprojectionMask(error_threshold=1.0)),
+        Augmentation("views", RadianceField(view_dependent=False, **size), PatchReprojectionMask(error_threshold=1.0)),
+    ]
+    return SimpleNeRF(NeRF(num_coarse=8, num_fine=8, **size), augmentations=augs,
+                      coarse_fine_mask=PatchReprojectionMask(error_threshold=1.0), supervision=supervision, **weights)
+
+
+class FakeTrainer:
+    def __init__(self, dm):
+        self.datamodule = dm
+
+
+@pytest.fixture(scope="module")
+def datamodule(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("aug")
+    dm = SyntheticDataModule(root=str(tmp / "data"), height=240, width=320, n_frames=8, n_views=2, rays_per_batch=64,
+                             sparse_rays_per_batch=16, sparse_depth_cache=str(tmp / "cache"))
+    dm.setup("fit")
+    return dm
+
+
+def run_step(model, dm, monkeypatch) -> tuple[torch.Tensor, dict]:
+    logged = {}
+    monkeypatch.setattr(model, "log_dict", lambda values, **kw: logged.update(values))
+    monkeypatch.setattr(model, "log", lambda *a, **kw: None)
+    monkeypatch.setattr(type(model), "trainer", property(lambda self: FakeTrainer(dm)))
+    model.on_fit_start()
+    batch = next(iter(dm.train_dataloader()))
+    return model.training_step(batch, 0), logged
+
+
+def test_masked_losses_cost_nothing_before_the_warm_up(datamodule, monkeypatch):
+    from simplenerf import reliability
+
+    model = simplenerf_module()
+    for name in ("points", "views", "cfc"):
+        model.loss_weights[name] = 0.0
+    calls = []
+    original = reliability.PatchReprojectionMask.__call__
+    monkeypatch.setattr(reliability.PatchReprojectionMask, "__call__",
+                        lambda self, *a: calls.append(1) or original(self, *a))
+    loss, logged = run_step(model, datamodule, monkeypatch)
+    assert calls == []  # no mask computed
+    assert {"train/loss_points", "train/loss_views", "train/loss_cfc"}.isdisjoint(logged)
+    assert torch.allclose(loss, logged["train/loss_color"] + 0.1 * logged["train/loss_sparse_depth"])
+
+
+def test_all_paper_losses_after_the_warm_up(datamodule, monkeypatch):
+    model = simplenerf_module()
+    loss, logged = run_step(model, datamodule, monkeypatch)
+    terms = ["color", "sparse_depth", "points", "views", "cfc"]
+    weights = {"color": 1.0, "sparse_depth": 0.1, "points": 0.1, "views": 0.1, "cfc": 0.1}
+    assert torch.allclose(loss, sum(weights[t] * logged[f"train/loss_{t}"] for t in terms))
+    for name in ("points", "views", "cfc"):
+        fractions = [logged[f"train/mask_{name}/{k}"] for k in ("plus", "minus", "zero")]
+        assert torch.allclose(sum(fractions), torch.tensor(1.0))
+    loss.backward()
+    for aug in model.augmentations:  # the augmented fields are trained (colour, L_sd and their masked loss)
+        assert aug.field.trunk[0].weight.grad.abs().sum() > 0
+
+
+def test_augmentations_share_the_main_coarse_samples(datamodule, monkeypatch):
+    model = simplenerf_module()
+    seen = []
+    for aug in model.augmentations:
+        original = aug.field.forward
+        monkeypatch.setattr(aug.field, "forward", lambda p, d, f=original: seen.append(p) or f(p, d))
+    original_coarse = model.nerf.coarse.forward
+    monkeypatch.setattr(model.nerf.coarse, "forward", lambda p, d: seen.append(p) or original_coarse(p, d))
+    run_step(model, datamodule, monkeypatch)
+    assert len(seen) == 3 and seen[1] is seen[0] and seen[2] is seen[0]  # one encoding, computed once
+
+
+def test_loss_weight_schedule_is_data():
+    from simplenerf.callbacks import LossWeightSchedule
+
+    schedule = LossWeightSchedule({"points": [(0, 0.0), (10000, 0.1)]})
+    assert [schedule.value("points", s, 0.1) for s in (0, 9999, 10000, 50000)] == [0.0, 0.0, 0.1, 0.1]
+    with pytest.raises(ValueError):
+        LossWeightSchedule({"cfc": [(10, 0.1), (0, 0.0)]})

@@ -244,7 +244,9 @@ class LLFFDataModule(L.LightningDataModule):
                   f"{np.median(sd.reprojection_error):.2f} px", flush=True)
         dtype = train.images.dtype
         error = torch.from_numpy(np.concatenate([sd.reprojection_error for sd in per_view])).to(dtype)
-        weight = 2 * torch.exp(-((error / error.mean()) ** 2)) if self.sparse_depth_weighting else torch.ones_like(error)
+        weight = torch.ones_like(error)
+        if self.sparse_depth_weighting:
+            weight = 2 * torch.exp(-((error / error.mean()) ** 2))
         return SparseDepthPool(
             view=torch.cat([torch.full((len(sd),), i) for i, sd in enumerate(per_view)]),
             uv=torch.from_numpy(np.concatenate([sd.pixels for sd in per_view])).to(dtype),

@@ -6,17 +6,20 @@ with the terms that are configured; evaluation (metrics, files) is the `evaluati
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Literal
 
 import lightning as L
+import numpy as np
 import torch
 from torch import nn
 
 from simplenerf.augmentations import Augmentation
+from simplenerf.evaluation import write_png
 from simplenerf.losses import color_loss, sparse_depth_loss
 from simplenerf.metrics import psnr
 from simplenerf.nerf import NeRF
-from simplenerf.rays import RayBundle
+from simplenerf.rays import RayBundle, make_rays
 from simplenerf.reliability import MaskContext, ReliabilityMask, mask_fractions, masked_depth_loss, nearest_views
 
 
@@ -130,6 +133,46 @@ class SimpleNeRF(L.LightningModule):
         self.log("val/psnr", psnr(pred["rgb"][None], target[None])[0], prog_bar=True, batch_size=1)
         return pred
 
+    def on_validation_epoch_end(self) -> None:
+        """Logs the reliability masks on the first train view: fractions of +1/-1/0 and an image per mask."""
+        if self.train_views is None or self.trainer.sanity_checking:
+            return
+        for name, m in self.reliability_maps(view=0).items():
+            self.log_dict({f"val/mask_{name}/{k}": v for k, v in mask_fractions(m).items()})
+            picture = mask_picture(m)
+            log_image = getattr(self.logger, "log_image", None)
+            if log_image is not None:
+                log_image(key=f"val/mask_{name}", images=[picture], step=self.global_step)
+            out = Path(self.trainer.default_root_dir) / "val"
+            out.mkdir(parents=True, exist_ok=True)
+            write_png(out / f"mask_{name}_step{self.global_step:06d}.png", picture)
+
+    @torch.no_grad()
+    def reliability_maps(self, view: int) -> dict[str, torch.Tensor]:
+        """Masks [H, W] in {-1, 0, +1} of each augmentation and of L_cfc on train view `view`, at every pixel."""
+        assert self.train_views is not None, "on_fit_start did not run"
+        images, intrinsics, c2w, _ = self.train_views
+        h, w = images.shape[1:3]
+        v, u = torch.meshgrid(torch.arange(h, device=self.device), torch.arange(w, device=self.device), indexing="ij")
+        uv = torch.stack([u.flatten(), v.flatten()], dim=-1)
+        views = torch.full((h * w,), view, device=self.device)
+        maps: dict[str, list[torch.Tensor]] = {}
+        for start in range(0, h * w, self.hparams.chunk):
+            part = make_rays(intrinsics[view : view + 1], c2w[view : view + 1], uv[start : start + self.hparams.chunk],
+                             w, h, self.nerf.near)
+            part.update(view=views[start : start + self.hparams.chunk], uv=uv[start : start + self.hparams.chunk])
+            main = self.nerf(RayBundle.from_batch(part), randomized=False)
+            context = MaskContext.from_batch(*self.train_views, part)
+            pairs = [(aug.name, aug.mask, aug.main_output(main), aug.render(self.nerf, main, False))
+                     for aug in self.augmentations]
+            if self.coarse_fine_mask is not None:
+                pairs.append(("cfc", self.coarse_fine_mask, main.coarse, main.fine))
+            for name, mask, main_out, other in pairs:
+                m = mask(context, main_out.depth, other.depth)
+                if m is not None:
+                    maps.setdefault(name, []).append(m)
+        return {name: torch.cat(parts).reshape(h, w) for name, parts in maps.items()}
+
     def test_step(self, batch: dict, batch_idx: int) -> dict[str, torch.Tensor]:
         return self.render_frame(batch)
 
@@ -141,6 +184,13 @@ class SimpleNeRF(L.LightningModule):
         rate, steps = self.hparams.lr_decay_rate, self.hparams.lr_decay_steps
         schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: rate ** (step / steps))
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
+
+
+def mask_picture(mask: torch.Tensor) -> np.ndarray:
+    """8-bit RGB picture of a ternary mask as in the paper's supplement: black where the other (augmented or fine)
+    depth is preferred (+1), white where the main depth is (-1), grey where neither is reliable (0)."""
+    grey = (127.5 * (1.0 - mask.float())).round().clamp(0, 255).to(torch.uint8).cpu().numpy()
+    return np.repeat(grey[..., None], 3, axis=-1)
 
 
 @torch.no_grad()

@@ -142,3 +142,18 @@ def test_loss_weight_schedule_is_data():
     assert [schedule.value("points", s, 0.1) for s in (0, 9999, 10000, 50000)] == [0.0, 0.0, 0.1, 0.1]
     with pytest.raises(ValueError):
         LossWeightSchedule({"cfc": [(10, 0.1), (0, 0.0)]})
+
+
+def test_reliability_maps_of_a_train_view(datamodule, monkeypatch):
+    from simplenerf.module import mask_picture
+
+    model = simplenerf_module()
+    model.hparams.chunk = 20000
+    run_step(model, datamodule, monkeypatch)
+    maps = model.reliability_maps(view=0)
+    assert set(maps) == {"points", "views", "cfc"}
+    for m in maps.values():
+        assert m.shape == (240, 320) and set(m.unique().tolist()) <= {-1.0, 0.0, 1.0}
+        assert bool((m[:2] == 0).all())  # within k // 2 of the border nothing is reliable
+    picture = mask_picture(torch.tensor([[1.0, 0.0, -1.0]]))
+    assert picture.shape == (1, 3, 3) and picture[0, :, 0].tolist() == [0, 128, 255]

@@ -1,5 +1,5 @@
 # The two commands of the README. Each creates .venv if missing, installs, then runs.
-#   make demo   trains SimpleNeRF on the built-in synthetic scene, then tests it (metrics + renders)
+#   make demo   trains SimpleNeRF and DS-NeRF on the built-in synthetic scene, tests both (metrics + renders)
 #   make test   runs the test suite
 PYTHON ?= python3
 VENV := .venv
@@ -24,9 +24,15 @@ $(VENV)/.installed: pyproject.toml
 
 setup: $(VENV)/.installed
 
+DSNERF := --config configs/demo.yaml --config configs/overrides/demo_dsnerf.yaml
+
 demo: $(VENV)/.installed
 	$(PY) -m simplenerf fit --config configs/demo.yaml
 	$(PY) -m simplenerf test --config configs/demo.yaml --ckpt_path last
+	$(PY) -m simplenerf fit $(DSNERF)
+	$(PY) -m simplenerf test $(DSNERF) --ckpt_path last
+	@echo "Test metrics on the synthetic scene (3 views, same budget), renders in runs/demo*/test:"
+	@$(PY) tools/compare_runs.py SimpleNeRF=runs/demo DS-NeRF=runs/demo_dsnerf
 
 test: $(VENV)/.installed
 	$(PY) -m pytest -q

@@ -1,0 +1,34 @@
+"""Side-by-side test metrics of several runs (their `test/summary.json`), as a markdown table."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from simplenerf.evaluation import METRICS
+
+LOWER_IS_BETTER = {"lpips", "depth_mae"}
+
+
+def load_summaries(runs: dict[str, Path]) -> dict[str, dict]:
+    """Run name -> the summary.json of its test outputs (a run folder or its test/ folder)."""
+    summaries = {}
+    for name, path in runs.items():
+        path = Path(path)
+        file = path / "summary.json" if (path / "summary.json").is_file() else path / "test" / "summary.json"
+        if not file.is_file():
+            raise FileNotFoundError(f"{file} not found: run `python -m simplenerf test ...` for {name} first")
+        summaries[name] = json.loads(file.read_text())
+    return summaries
+
+
+def markdown_table(summaries: dict[str, dict]) -> str:
+    """One row per run, one column per metric (arrows say which way is better)."""
+    metrics = [m for m in METRICS if any(s.get(m) is not None for s in summaries.values())]
+    arrow = {m: "↓" if m in LOWER_IS_BETTER else "↑" for m in metrics}
+    lines = ["| run | " + " | ".join(f"{m} {arrow[m]}" for m in metrics) + " |",
+             "|---|" + "---:|" * len(metrics)]
+    for name, summary in summaries.items():
+        cells = [f"{summary[m]:.4f}" if summary.get(m) is not None else "-" for m in metrics]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)

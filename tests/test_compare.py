@@ -1,0 +1,24 @@
+import json
+
+import pytest
+
+from simplenerf.compare import load_summaries, markdown_table
+
+
+def test_table_of_two_runs(tmp_path):
+    for name, psnr in (("a", 20.0), ("b", 21.5)):
+        (tmp_path / name / "test").mkdir(parents=True)
+        summary = {"frames": 3, "psnr": psnr, "ssim": 0.5, "lpips": 0.3, "depth_mae": None, "depth_srocc": None}
+        (tmp_path / name / "test" / "summary.json").write_text(json.dumps(summary))
+    table = markdown_table(load_summaries({"A": tmp_path / "a", "B": tmp_path / "b" / "test"}))
+    assert table.splitlines() == [
+        "| run | psnr ↑ | ssim ↑ | lpips ↓ |",
+        "|---|---:|---:|---:|",
+        "| A | 20.0000 | 0.5000 | 0.3000 |",
+        "| B | 21.5000 | 0.5000 | 0.3000 |",
+    ]
+
+
+def test_missing_run_says_what_to_do(tmp_path):
+    with pytest.raises(FileNotFoundError, match="run `python -m simplenerf test"):
+        load_summaries({"A": tmp_path})

@@ -54,17 +54,31 @@ def trainer_defaults() -> dict:
     }
 
 
+def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[LightningCLI] = SimpleNeRFCLI):
+    """The CLI on `args` (None: sys.argv). With run=False it only builds model, data module and trainer (tools)."""
+    return cli_class(
+        SimpleNeRF,
+        LightningDataModule,
+        subclass_mode_data=True,
+        trainer_defaults=trainer_defaults(),
+        save_config_kwargs={"overwrite": True},
+        run=run,
+        args=args,
+    )
+
+
+def split_overrides(argv: list[str]) -> tuple[list[str], list[str]]:
+    """A tool's own arguments and, after `--`, the overrides it passes to the CLI."""
+    if "--" not in argv:
+        return argv, []
+    i = argv.index("--")
+    return argv[:i], argv[i + 1 :]
+
+
 def main(args: list[str] | None = None) -> None:
     """Entry point; bad input ends with one `error:` line and exit status 2 instead of a traceback."""
     try:
-        SimpleNeRFCLI(
-            SimpleNeRF,
-            LightningDataModule,
-            subclass_mode_data=True,
-            trainer_defaults=trainer_defaults(),
-            save_config_kwargs={"overwrite": True},
-            args=args,
-        )
+        make_cli(args)
     except (SimpleNeRFError, LPIPSWeightsNotFound) as e:
         print(f"simplenerf: error: {e}", file=sys.stderr)
         sys.exit(2)

@@ -4,8 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from simplenerf.cli import SimpleNeRFCLI, trainer_defaults
-from simplenerf.module import SimpleNeRF
+from simplenerf.cli import SimpleNeRFCLI, make_cli
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 OVERRIDES = sorted((CONFIG_DIR / "overrides").rglob("*.yaml"))  # partial: added after a complete config
@@ -19,13 +18,8 @@ class ParseOnlyCLI(SimpleNeRFCLI):
 
 def parse(config: Path, *extra: str):
     """The parsed config of `config` (+ extra CLI arguments, e.g. more --config files)."""
-    from lightning.pytorch import LightningDataModule
-
-    cli = ParseOnlyCLI(  # args given explicitly: pytest's own argv must not be parsed
-        SimpleNeRF, LightningDataModule, subclass_mode_data=True, trainer_defaults=trainer_defaults(), run=False,
-        args=["--config", str(config), *extra],
-    )
-    return cli.config
+    # args given explicitly: pytest's own argv must not be parsed
+    return make_cli(["--config", str(config), *extra], run=False, cli_class=ParseOnlyCLI).config
 
 
 def test_there_are_configs():

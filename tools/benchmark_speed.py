@@ -13,17 +13,12 @@ import argparse
 import json
 import sys
 
-from lightning.pytorch import LightningDataModule
-
 from simplenerf.benchmark import time_training
-from simplenerf.cli import SimpleNeRFCLI, trainer_defaults
-from simplenerf.module import SimpleNeRF
+from simplenerf.cli import make_cli, split_overrides
 
 
 def main() -> None:
-    argv = sys.argv[1:]
-    overrides = argv[argv.index("--") + 1 :] if "--" in argv else []
-    own = argv[: argv.index("--")] if "--" in argv else argv
+    own, overrides = split_overrides(sys.argv[1:])
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", required=True)
     parser.add_argument("--rays", type=int, help="random rays per iteration (overrides the config)")
@@ -33,10 +28,7 @@ def main() -> None:
     args = parser.parse_args(own)
     if args.rays:
         overrides += ["--data.init_args.rays_per_batch", str(args.rays)]
-    cli = SimpleNeRFCLI(
-        SimpleNeRF, LightningDataModule, subclass_mode_data=True, trainer_defaults=trainer_defaults(), run=False,
-        args=["--config", args.config, "--trainer.logger", "false", *overrides],
-    )
+    cli = make_cli(["--config", args.config, "--trainer.logger", "false", *overrides], run=False)
     result = time_training(cli.model, cli.datamodule, args.steps, args.warmup, args.precision)
     print(json.dumps({"config": args.config, "overrides": overrides, "rays": cli.datamodule.rays_per_batch,
                       "precision": args.precision, **result}))

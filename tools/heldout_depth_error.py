@@ -13,26 +13,19 @@ import json
 import sys
 
 import torch
-from lightning.pytorch import LightningDataModule
 
-from simplenerf.cli import SimpleNeRFCLI, trainer_defaults
-from simplenerf.module import SimpleNeRF
+from simplenerf.cli import make_cli, split_overrides
 from simplenerf.sfm_reference import heldout_depth_error, heldout_observations
 
 
 def main() -> None:
-    argv = sys.argv[1:]
-    overrides = argv[argv.index("--") + 1 :] if "--" in argv else []
-    own = argv[: argv.index("--")] if "--" in argv else argv
+    own, overrides = split_overrides(sys.argv[1:])
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", required=True)
     parser.add_argument("--ckpt", required=True, help="checkpoint of the trained model")
     parser.add_argument("--cache", default="data/cache/sparse_depth", help="where the SfM reference is cached")
     args = parser.parse_args(own)
-    cli = SimpleNeRFCLI(
-        SimpleNeRF, LightningDataModule, subclass_mode_data=True, trainer_defaults=trainer_defaults(), run=False,
-        args=["--config", args.config, "--trainer.logger", "false", *overrides],
-    )
+    cli = make_cli(["--config", args.config, "--trainer.logger", "false", *overrides], run=False)
     dm = cli.datamodule
     dm.setup("test")
     model = cli.model

@@ -10,17 +10,11 @@ from __future__ import annotations
 
 import sys
 
-from lightning.pytorch import LightningDataModule
-
-from simplenerf.cli import SimpleNeRFCLI, trainer_defaults
-from simplenerf.module import SimpleNeRF
+from simplenerf.cli import make_cli
 
 
 def main() -> None:
-    cli = SimpleNeRFCLI(
-        SimpleNeRF, LightningDataModule, subclass_mode_data=True, trainer_defaults=trainer_defaults(), run=False,
-        args=[*sys.argv[1:], "--trainer.logger", "false"],
-    )
+    cli = make_cli([*sys.argv[1:], "--trainer.logger", "false"], run=False)
     dm = cli.datamodule
     if not getattr(dm, "sparse_rays_per_batch", 0):
         sys.exit("this config does not use sparse depth (data.init_args.sparse_rays_per_batch is 0)")

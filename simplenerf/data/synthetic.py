@@ -520,25 +520,13 @@ def make_synthetic_scene(
 class SyntheticDataModule(LLFFDataModule):
     """The built-in synthetic scene as a data module: generated under `root` on first use, then read as LLFF.
 
-    Its exact depth maps are the reference depth of `test` (depth MAE and SROCC).
+    Its exact depth maps are the reference depth of `test` (depth MAE and SROCC). Every other argument is the
+    `LLFFDataModule`'s.
     """
 
     def __init__(
-        self,
-        root: str = "data/synthetic",
-        height: int = 96,
-        width: int = 128,
-        n_frames: int = 20,
-        scene_seed: int = 0,
-        n_views: int = 3,
-        rays_per_batch: int = 1024,
-        test_every: int = 8,
-        near: float = 1.0,
-        seed: int = 0,
-        num_workers: int = 0,
-        sparse_rays_per_batch: int = 0,
-        sparse_depth_cache: str = "data/cache/sparse_depth",
-        sparse_depth_weighting: bool = False,
+        self, root: str = "data/synthetic", height: int = 96, width: int = 128, n_frames: int = 20,
+        scene_seed: int = 0, **kwargs,
     ) -> None:
         """
         Args:
@@ -547,15 +535,6 @@ class SyntheticDataModule(LLFFDataModule):
             width: image width in pixels.
             n_frames: number of frames (every test_every-th is a test frame).
             scene_seed: seed of the scene's geometry, textures and cameras.
-            n_views: number of training views.
-            rays_per_batch: random training rays per iteration.
-            test_every: every this-many-th frame is a test frame.
-            near: NDC near plane in scaled scene units.
-            seed: seed of the training-ray order.
-            num_workers: data-loader worker processes for training rays.
-            sparse_rays_per_batch: rays per iteration with an SfM depth for the sparse-depth loss; 0 disables it.
-            sparse_depth_cache: folder where sparse depth is cached.
-            sparse_depth_weighting: weight points by DS-NeRF's reprojection-error weight.
         """
         scene_dir = make_synthetic_scene(
             Path(root) / f"seed{scene_seed}_{height}x{width}_{n_frames}",
@@ -564,11 +543,7 @@ class SyntheticDataModule(LLFFDataModule):
             n_frames=n_frames,
             seed=scene_seed,
         )
-        super().__init__(
-            str(scene_dir), n_views, 1, rays_per_batch, test_every, near, seed, num_workers,
-            sparse_rays_per_batch, sparse_depth_cache, sparse_depth_weighting,
-        )
-
+        super().__init__(scene_dir=str(scene_dir), factor=1, **kwargs)
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Write the synthetic LLFF-style scene.")

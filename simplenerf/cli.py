@@ -35,7 +35,7 @@ class SimpleNeRFCLI(LightningCLI):
     def _run_subcommand(self, subcommand: str) -> None:
         # Bad input (a missing scene, missing LPIPS weights) stops here, before loggers or outputs are created.
         if hasattr(self.datamodule, "check_inputs"):
-            self.datamodule.check_inputs()
+            self.datamodule.check_inputs(subcommand)
         for callback in self.trainer.callbacks:
             if hasattr(callback, "check_inputs"):
                 callback.check_inputs(subcommand)

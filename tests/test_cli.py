@@ -134,3 +134,20 @@ def test_user_augmentation_plugs_in_by_class_path(tmp_path):
     run("fit", *run_args(tmp_path), "--config", str(override), "--trainer.max_steps", "2")
     state = torch.load(tmp_path / "run/checkpoints/last.ckpt", map_location="cpu", weights_only=False)["state_dict"]
     assert state["augmentations.0.field.trunk.0.weight"].shape == (16, 15)  # gamma(p, 0, 2): 15 inputs
+
+
+def test_unreadable_image_stops_before_anything_is_written(synthetic_scene, tmp_path):
+    import shutil
+
+    scene = shutil.copytree(synthetic_scene, tmp_path / "scene")
+    (scene / "images" / "005.png").write_bytes(b"truncated")
+    proc = run(
+        "fit", "--config", "configs/dsnerf.yaml", "--data.init_args.scene_dir", str(scene),
+        "--data.init_args.factor", "1", "--trainer.default_root_dir", str(tmp_path / "run"),
+        "--trainer.logger.init_args.save_dir", str(tmp_path / "run"), check=False,
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1] == (
+        f"simplenerf: error: cannot read image {scene / 'images' / '005.png'} (missing, truncated or not an image)"
+    )
+    assert not (tmp_path / "run" / "wandb").exists() and not (tmp_path / "run" / "checkpoints").exists()

@@ -215,16 +215,15 @@ class LLFFDataModule(L.LightningDataModule):
         self.scene: LLFFScene | None = None
         self.sparse_depth: SparseDepthPool | None = None
 
-    def check_inputs(self) -> None:
-        """Cheap checks (no image decoding) that the CLI runs before it starts anything, so bad input costs nothing."""
-        paths, _ = check_scene(self.scene_dir, self.factor)
-        llff_split(len(paths), self.n_views, self.test_every)
+    def check_inputs(self, stage: str) -> None:
+        """Loads everything `stage` needs; the CLI calls this before loggers or outputs start, so bad input (a missing
+        or unreadable file, an impossible split, a scene without SfM points) stops the run with nothing written."""
+        self.setup(stage)
 
     def load_scene(self) -> LLFFScene:
         return load_llff_scene(self.scene_dir, self.factor, self.n_views, self.test_every)
 
     def setup(self, stage: str) -> None:
-        # The Trainer calls this before it writes anything, so a bad scene stops the run with nothing written.
         if self.scene is None:
             self.scene = self.load_scene()
         if stage == "fit" and self.sparse_rays_per_batch and self.sparse_depth is None:

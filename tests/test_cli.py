@@ -16,10 +16,21 @@ from tests.conftest import REPO, shared_dir
 
 SMALL = [
     "--model.nerf.num_coarse", "8", "--model.nerf.num_fine", "8", "--model.nerf.num_layers", "2",
-    "--model.nerf.width", "16", "--model.nerf.skip_layer", "1", "--model.chunk", "1024",
-    "--data.init_args.height", "48", "--data.init_args.width", "64", "--data.init_args.rays_per_batch", "64",
+    "--model.nerf.width", "16", "--model.nerf.skip_layer", "1", "--model.chunk", "4096",
+    "--data.init_args.rays_per_batch", "64", "--data.init_args.sparse_rays_per_batch", "32",
     "--trainer.val_check_interval", "2", "--checkpoint.every_n_train_steps", "2",
 ]
+
+
+def tiny_augmentations(tmp: Path) -> Path:
+    """An override with the demo's augmentations at a tiny size (lists are replaced whole, so all of it)."""
+    demo = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
+    augmentations = demo["model"]["augmentations"]
+    for aug in augmentations:
+        aug["init_args"]["field"]["init_args"].update(num_layers=2, width=16, skip_layer=1)
+    path = tmp / "tiny_augmentations.yaml"
+    path.write_text(yaml.safe_dump({"model": {"augmentations": augmentations}}))
+    return path
 
 
 def run(*args: str, env: dict | None = None, check: bool = True) -> subprocess.CompletedProcess:
@@ -34,8 +45,10 @@ def run(*args: str, env: dict | None = None, check: bool = True) -> subprocess.C
 
 
 def run_args(tmp: Path) -> list[str]:
+    """The demo config (SimpleNeRF on the synthetic scene, 96x128) shrunk to seconds, with its files in `tmp`."""
     return [
-        "--config", "configs/demo.yaml", *SMALL, "--data.init_args.root", str(tmp / "data"),
+        "--config", "configs/demo.yaml", "--config", str(tiny_augmentations(tmp)), *SMALL,
+        "--data.init_args.root", str(tmp / "data"), "--data.init_args.sparse_depth_cache", str(tmp / "cache"),
         "--trainer.default_root_dir", str(tmp / "run"), "--trainer.logger.init_args.save_dir", str(tmp / "run"),
     ]
 
@@ -55,6 +68,16 @@ def test_fit_writes_checkpoints_and_resumes(trained):
     last = torch.load(ckpts / "last.ckpt", map_location="cpu", weights_only=False)
     assert last["global_step"] == 6  # resumed from step 4, not restarted
     assert (trained / "run" / "wandb").is_dir()  # the default logger ran, offline
+    # SimpleNeRF's pieces were trained, and validation saved the reliability masks of the first train view.
+    assert "augmentations.0.field.trunk.0.weight" in last["state_dict"]
+    assert {"mask_points_step000002.png", "mask_views_step000002.png", "mask_cfc_step000002.png"} <= {
+        p.name for p in (trained / "run" / "val").iterdir()
+    }
+
+
+def test_validate_reports_psnr(trained):
+    out = run("validate", *run_args(trained), "--ckpt_path", "last").stdout
+    assert "val/psnr" in out
 
 
 def test_test_writes_metrics_and_renders(trained):
@@ -130,6 +153,10 @@ def test_user_augmentation_plugs_in_by_class_path(tmp_path):
         "    - class_path: tests.custom_augmentation.LowPassPointsAugmentation\n"
         "      init_args: {bands: 2, width: 16, num_layers: 2}\n"
         "  coarse_fine_mask: {class_path: simplenerf.reliability.PatchReprojectionMask}\n"
+        "trainer:\n"
+        "  callbacks:\n"
+        "    - class_path: simplenerf.callbacks.LossWeightSchedule\n"
+        "      init_args: {schedules: {lowpass: [[0, 0.0], [1, 0.1]]}}\n"
     )
     run("fit", *run_args(tmp_path), "--config", str(override), "--trainer.max_steps", "2")
     state = torch.load(tmp_path / "run/checkpoints/last.ckpt", map_location="cpu", weights_only=False)["state_dict"]

@@ -99,40 +99,13 @@ class RadianceField(nn.Module):
         x = points_enc[..., self.trunk_slice]
         h = x
         for i, layer in enumerate(self.trunk):
-            if i == self.skip_layer:
-                h = concat_linear(layer, [h, x])
-            else:
-                h = layer(h)
-            h = torch.relu_(h)
+            h = torch.relu(layer(torch.cat([h, x], dim=-1) if i == self.skip_layer else h))
         if not self.view_dependent:
             out = self.output(h)
             return FieldOutputs(raw_density=out[..., 0], rgb=torch.sigmoid(out[..., 1:]))
-        per_sample = [self.feature(h)]
+        color_in = [self.feature(h)]
         if self.residual_bands_to_color:
-            per_sample.append(points_enc[..., self.residual_slice])
-        hidden = concat_linear(self.color[0], per_sample, per_ray=dirs_enc)
-        rgb = torch.sigmoid(self.color[2](torch.relu_(hidden)))
+            color_in.append(points_enc[..., self.residual_slice])
+        color_in.append(dirs_enc[:, None, :].expand(*h.shape[:-1], dirs_enc.shape[-1]))
+        rgb = torch.sigmoid(self.color(torch.cat(color_in, dim=-1)))
         return FieldOutputs(raw_density=self.density_head(h)[..., 0], rgb=rgb)
-
-
-def concat_linear(layer: nn.Linear, inputs: list[torch.Tensor], per_ray: torch.Tensor | None = None) -> torch.Tensor:
-    """layer(cat(inputs + [per_ray broadcast over samples])) without materialising the concatenation.
-
-    The weight is split by input blocks, so the per-ray block (view directions) is multiplied once per ray instead of
-    once per sample, and no [R, S, sum of widths] copy is made. Same parameters (and default init) as the plain layer.
-
-    Args:
-        inputs: [R, S, C_i] per-sample blocks. per_ray: [R, C] block shared by the samples of a ray.
-    """
-    out, start = None, 0
-    for block in inputs:
-        end = start + block.shape[-1]
-        term = nn.functional.linear(block, layer.weight[:, start:end])
-        out = term if out is None else out + term
-        start = end
-    out = out + layer.bias
-    if per_ray is not None:
-        out = out + nn.functional.linear(per_ray, layer.weight[:, start:])[:, None, :]
-        start += per_ray.shape[-1]
-    assert start == layer.in_features, f"inputs have {start} features, the layer takes {layer.in_features}"
-    return out

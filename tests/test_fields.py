@@ -55,17 +55,3 @@ def test_invalid_configurations_are_rejected():
     with pytest.raises(ValueError):
         RadianceField(view_dependent=False, density_bands=3, residual_bands_to_color=True)
 
-
-def test_split_layers_equal_the_concatenated_network():
-    """The per-block matmuls compute exactly the layer applied to the concatenated input of the release."""
-    field = RadianceField(density_bands=3, residual_bands_to_color=True)
-    _, p_enc, v_enc = encodings()
-    x = p_enc[..., :21]
-    h = x
-    for i, layer in enumerate(field.trunk):
-        h = torch.relu(layer(torch.cat([h, x], -1) if i == field.skip_layer else h))
-    color_in = torch.cat([field.feature(h), p_enc[..., 21:], v_enc[:, None].expand(4, 5, 27)], -1)
-    expected = torch.sigmoid(field.color(color_in))
-    out = field(p_enc, v_enc)
-    assert torch.allclose(out.rgb, expected, atol=1e-6)
-    assert torch.allclose(out.raw_density, field.density_head(h)[..., 0], atol=1e-6)

@@ -97,20 +97,25 @@ class SimpleNeRF(L.LightningModule):
         if has_sparse:  # not on the main coarse depth
             sparse = [r[n:] for r in renders[1:]]
             losses["sparse_depth"] = sparse_depth_loss(sparse, batch["sparse_depth"], batch["sparse_weight"])
-        for aug, aug_out in zip(self.augmentations, augmented, strict=True):
-            if self.loss_weights[aug.name] > 0:  # free before the warm-up ends
-                tied = aug.main_output(main)[:n]
-                losses[aug.name] = self.depth_supervision(aug.name, aug.mask, batch, tied, aug_out[:n])
-        if self.coarse_fine_mask is not None and self.loss_weights["cfc"] > 0:
-            losses["cfc"] = self.depth_supervision("cfc", self.coarse_fine_mask, batch, main.coarse[:n], main.fine[:n])
-            if has_sparse and self.hparams.coarse_fine_on_sparse_rays:
-                losses["cfc"] = losses["cfc"] + torch.mean((main.coarse.depth[n:] - main.fine.depth[n:].detach()) ** 2)
+        for name, mask, tied, other in self.depth_pairs(main, augmented):
+            if self.loss_weights[name] > 0:  # free before the warm-up ends
+                losses[name] = self.depth_supervision(name, mask, batch, tied[:n], other[:n])
+        if "cfc" in losses and has_sparse and self.hparams.coarse_fine_on_sparse_rays:
+            losses["cfc"] = losses["cfc"] + torch.mean((main.coarse.depth[n:] - main.fine.depth[n:].detach()) ** 2)
         loss = sum(self.loss_weights[name] * value for name, value in losses.items())
 
         self.log_dict({f"train/loss_{name}": value for name, value in losses.items()})
         self.log_dict({"train/loss": loss, "train/psnr_fine": psnr_of_mse(main.fine[:n].rgb, batch["rgb"])})
         self.log("loss", loss, prog_bar=True, logger=False)
         return loss
+
+    def depth_pairs(self, main, augmented: list) -> list[tuple[str, ReliabilityMask, object, object]]:
+        """(loss name, mask, main render, other render) of every masked depth loss: L_ap, L_av, ..., then L_cfc."""
+        pairs = [(aug.name, aug.mask, aug.main_output(main), out)
+                 for aug, out in zip(self.augmentations, augmented, strict=True)]
+        if self.coarse_fine_mask is not None:
+            pairs.append(("cfc", self.coarse_fine_mask, main.coarse, main.fine))
+        return pairs
 
     def depth_supervision(self, name: str, mask: ReliabilityMask, batch: dict, main, other) -> torch.Tensor:
         """The masked depth loss between a main render and another one (augmentation, or fine for L_cfc)."""
@@ -163,11 +168,8 @@ class SimpleNeRF(L.LightningModule):
             part.update(view=views[start : start + self.hparams.chunk], uv=uv[start : start + self.hparams.chunk])
             main = self.nerf(RayBundle.from_batch(part), randomized=False)
             context = MaskContext.from_batch(*self.train_views, part)
-            pairs = [(aug.name, aug.mask, aug.main_output(main), aug.render(self.nerf, main, False))
-                     for aug in self.augmentations]
-            if self.coarse_fine_mask is not None:
-                pairs.append(("cfc", self.coarse_fine_mask, main.coarse, main.fine))
-            for name, mask, main_out, other in pairs:
+            augmented = [aug.render(self.nerf, main, False) for aug in self.augmentations]
+            for name, mask, main_out, other in self.depth_pairs(main, augmented):
                 m = mask(context, main_out.depth, other.depth)
                 if m is not None:
                     maps.setdefault(name, []).append(m)

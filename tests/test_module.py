@@ -9,12 +9,18 @@ from simplenerf.nerf import NeRF
 
 
 @pytest.fixture(scope="module")
-def batch(tmp_path_factory):
+def datamodule(tmp_path_factory):
+    """The synthetic scene at 240x320 (SIFT needs the pixels), 2 views, with sparse depth."""
     tmp = tmp_path_factory.mktemp("module")
-    dm = SyntheticDataModule(root=str(tmp / "data"), height=240, width=320, n_frames=8, n_views=2, rays_per_batch=32,
+    dm = SyntheticDataModule(root=str(tmp / "data"), height=240, width=320, n_frames=8, n_views=2, rays_per_batch=64,
                              sparse_rays_per_batch=16, sparse_depth_cache=str(tmp / "cache"))
     dm.setup("fit")
-    return next(iter(dm.train_dataloader()))
+    return dm
+
+
+@pytest.fixture(scope="module")
+def batch(datamodule):
+    return next(iter(datamodule.train_dataloader()))
 
 
 def module(**weights) -> SimpleNeRF:
@@ -72,15 +78,6 @@ def simplenerf_module(supervision: str = "bidirectional", **weights) -> SimpleNe
 class FakeTrainer:
     def __init__(self, dm):
         self.datamodule = dm
-
-
-@pytest.fixture(scope="module")
-def datamodule(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("aug")
-    dm = SyntheticDataModule(root=str(tmp / "data"), height=240, width=320, n_frames=8, n_views=2, rays_per_batch=64,
-                             sparse_rays_per_batch=16, sparse_depth_cache=str(tmp / "cache"))
-    dm.setup("fit")
-    return dm
 
 
 def run_step(model, dm, monkeypatch) -> tuple[torch.Tensor, dict]:

@@ -3,7 +3,8 @@
     python tools/heldout_depth_error.py --config configs/dsnerf.yaml --ckpt runs/dsnerf/checkpoints/last.ckpt \
         -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.factor 8
 
-Everything after `--` is passed to the CLI as overrides. Prints one JSON line.
+Everything after `--` is passed to the CLI as overrides. Prints one JSON line; with `--out FILE` also writes it there
+(`<run>/heldout_depth.json` is where `tools/compare_runs.py` looks for it).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import torch
 
@@ -24,6 +26,7 @@ def main() -> None:
     parser.add_argument("--config", required=True)
     parser.add_argument("--ckpt", required=True, help="checkpoint of the trained model")
     parser.add_argument("--cache", default="data/cache/sparse_depth", help="where the SfM reference is cached")
+    parser.add_argument("--out", help="also write the JSON result to this file")
     args = parser.parse_args(own)
     cli = make_cli(["--config", args.config, "--trainer.logger", "false", *overrides], run=False)
     dm = cli.datamodule
@@ -33,7 +36,10 @@ def main() -> None:
     model.eval()
     observations = heldout_observations(dm.scene, args.cache, str(dm.scene_dir.resolve()))
     result = heldout_depth_error(model.nerf, dm.scene, observations, dm.near, model.hparams.chunk)
-    print(json.dumps({"ckpt": args.ckpt, "overrides": overrides, **result}))
+    line = json.dumps({"ckpt": args.ckpt, "overrides": overrides, **result})
+    print(line)
+    if args.out:
+        Path(args.out).write_text(line + "\n")
 
 
 if __name__ == "__main__":

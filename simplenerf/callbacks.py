@@ -54,6 +54,11 @@ class Checkpointing(ModelCheckpoint):
             save_last=True,
         )
 
+    def on_train_end(self, trainer, pl_module) -> None:
+        # max_steps need not be a multiple of every_n_train_steps: the final weights still end up in last.ckpt.
+        if self.dirpath is not None and trainer.global_step > 0 and self._last_global_step_saved != trainer.global_step:
+            trainer.save_checkpoint(f"{self.dirpath}/last.ckpt")
+
     def on_exception(self, trainer, pl_module, exception: BaseException) -> None:
         if trainer.state.fn == "fit" and self.dirpath is not None and trainer.global_step > 0:
             trainer.save_checkpoint(f"{self.dirpath}/last.ckpt")

@@ -104,8 +104,10 @@ class SimpleNeRF(L.LightningModule):
             losses["cfc"] = losses["cfc"] + torch.mean((main.coarse.depth[n:] - main.fine.depth[n:].detach()) ** 2)
         loss = sum(self.loss_weights[name] * value for name, value in losses.items())
 
-        self.log_dict({f"train/loss_{name}": value for name, value in losses.items()})
-        self.log_dict({"train/loss": loss, "train/psnr_fine": psnr_of_mse(main.fine[:n].rgb, batch["rgb"])})
+        # sync_dist: under DDP every rank trains on its own rays; the logged values are their mean (no-op otherwise).
+        self.log_dict({f"train/loss_{name}": value for name, value in losses.items()}, sync_dist=True)
+        self.log_dict({"train/loss": loss, "train/psnr_fine": psnr_of_mse(main.fine[:n].rgb, batch["rgb"])},
+                      sync_dist=True)
         self.log("loss", loss, prog_bar=True, logger=False)
         return loss
 
@@ -123,7 +125,7 @@ class SimpleNeRF(L.LightningModule):
         context = MaskContext.from_batch(*self.train_views, batch)
         m = mask(context, main.depth.detach(), other.depth.detach())
         if m is not None:
-            self.log_dict({f"train/mask_{name}/{k}": v for k, v in mask_fractions(m).items()})
+            self.log_dict({f"train/mask_{name}/{k}": v for k, v in mask_fractions(m).items()}, sync_dist=True)
         return masked_depth_loss(main.depth, other.depth, m, self.hparams.supervision)
 
     def render_frame(self, batch: dict) -> dict[str, torch.Tensor]:
@@ -135,7 +137,7 @@ class SimpleNeRF(L.LightningModule):
     def validation_step(self, batch: dict, batch_idx: int) -> dict[str, torch.Tensor]:
         pred = self.render_frame(batch)
         target = batch["rgb"].reshape(pred["rgb"].shape)
-        self.log("val/psnr", psnr(pred["rgb"][None], target[None])[0], prog_bar=True, batch_size=1)
+        self.log("val/psnr", psnr(pred["rgb"][None], target[None])[0], prog_bar=True, batch_size=1, sync_dist=True)
         return pred
 
     def on_validation_epoch_end(self) -> None:
@@ -143,7 +145,9 @@ class SimpleNeRF(L.LightningModule):
         if self.train_views is None or self.trainer.sanity_checking:
             return
         for name, m in self.reliability_maps(view=0).items():
-            self.log_dict({f"val/mask_{name}/{k}": v for k, v in mask_fractions(m).items()})
+            self.log_dict({f"val/mask_{name}/{k}": v for k, v in mask_fractions(m).items()}, sync_dist=True)
+            if not self.trainer.is_global_zero:  # every rank computed the same maps; one writes them
+                continue
             picture = mask_picture(m)
             log_image = getattr(self.logger, "log_image", None)
             if log_image is not None:

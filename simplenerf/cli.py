@@ -21,6 +21,7 @@ from simplenerf.evaluation import Evaluator
 from simplenerf.loggers import WandbLogger
 from simplenerf.lpips import LPIPSWeightsNotFound
 from simplenerf.module import SimpleNeRF
+from simplenerf.visuals import ValidationRenders
 
 
 class SimpleNeRFCLI(LightningCLI):
@@ -47,7 +48,9 @@ def trainer_defaults() -> dict:
         "default_root_dir": "runs/default",
         "max_steps": 100000,
         "logger": lazy_instance(WandbLogger),
-        "callbacks": [RichProgressBar(), RaysPerSecond(), LearningRateMonitor(logging_interval="step")],
+        "callbacks": [
+            RichProgressBar(), RaysPerSecond(), LearningRateMonitor(logging_interval="step"), ValidationRenders()
+        ],
         "check_val_every_n_epoch": None,
         "val_check_interval": 5000,
         "num_sanity_val_steps": 0,

@@ -1,9 +1,15 @@
 """LLFF scenes (`nerf_llff_data/<scene>/{images_N, poses_bounds.npy}`): loading, the paper's split, the data module.
 
 Split (SPEC 6): test = every 8th frame; train = round(linspace(-1, N, n + 2))[1:-1] indexing the N non-test frames;
-validation = the middle test frame. Bounds come from the train frames only; the scene is scaled by
-1 / (0.75 * min bound) so the NDC near plane 1 lies in front of every train camera, and recentred on the average
-train pose.
+validation = the middle test frame. n_views None is the dense split of the reference NeRF (SPEC 7): every non-test
+frame trains. LLFF's test set does not depend on n, so one dense NeRF per scene serves every view count.
+Bounds come from the train frames only; the scene is scaled by 1 / (0.75 * min bound) so the NDC near plane 1 lies
+in front of every train camera, and recentred on the average train pose.
+
+Reference depth (for depth metrics and visibility masks) is camera z-depth in FILE units (the units of the scene's
+own poses, before scaling), one `<frame name>.npy` [H, W] per frame: the exact depth of the synthetic scene
+(`depths_{factor}/`) or a dense NeRF's export (`simplenerf.reference_depth`). File units make it independent of the
+split, whose train bounds set the scale; loading multiplies by the scale.
 """
 
 from __future__ import annotations
@@ -33,10 +39,15 @@ class Split:
     val: list[int]
 
 
-def llff_split(num_frames: int, n_views: int, test_every: int = 8) -> Split:
-    """The paper's LLFF split for a scene of `num_frames` frames and `n_views` training views."""
+def llff_split(num_frames: int, n_views: int | None, test_every: int = 8) -> Split:
+    """The paper's LLFF split for a scene of `num_frames` frames and `n_views` training views (None: every non-test
+    frame, the dense reference NeRF's split)."""
     test = list(range(0, num_frames, test_every))
     pool = [i for i in range(num_frames) if i not in test]
+    if n_views is None:
+        if not pool:
+            raise DataError(f"a scene of {num_frames} frames has no non-test frame to train on")
+        return Split(train=pool, test=test, val=[test[len(test) // 2]])
     if not 1 <= n_views <= len(pool):
         raise DataError(f"n_views={n_views} is not possible: the train pool has {len(pool)} frames")
     picks = np.round(np.linspace(-1, len(pool), n_views + 2))[1:-1].astype(int)
@@ -123,8 +134,47 @@ def check_scene(scene_dir: Path, factor: int) -> tuple[list[Path], np.ndarray]:
     return paths, poses_bounds
 
 
-def load_llff_scene(scene_dir: str | Path, factor: int, n_views: int, test_every: int = 8) -> LLFFScene:
-    """Reads every frame of an LLFF scene at `images_{factor}` (and `depths_{factor}` if present)."""
+def read_reference_depth(directory: str | Path, names: list[str], height: int, width: int) -> np.ndarray:
+    """Reference depth [V, H, W] in file units from `<directory>/<name>.npy` for each frame name, checked."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise DataError(f"reference depth folder {directory} does not exist")
+    depths = []
+    for name in names:
+        path = directory / f"{name}.npy"
+        if not path.is_file():
+            raise DataError(f"{path} is missing: the reference depth folder needs one <frame name>.npy per frame")
+        try:
+            depth = np.load(path)
+        except (OSError, ValueError) as e:
+            raise DataError(f"cannot read reference depth {path}: {e}") from e
+        if depth.shape != (height, width):
+            raise DataError(f"{path} has shape {depth.shape}, expected the frame's ({height}, {width})")
+        depths.append(depth)
+    return np.stack(depths)
+
+
+def make_views(
+    images: np.ndarray, intrinsics: np.ndarray, c2w: np.ndarray, names: list[str], depths: np.ndarray | None,
+    scale: float,
+) -> Views:
+    """Views in the default dtype from uint8 images [V, H, W, 3], cameras and file-unit depths [V, H, W] (or None)."""
+    dtype = torch.get_default_dtype()
+    return Views(
+        images=torch.from_numpy(images).to(dtype) / 255.0,
+        intrinsics=torch.from_numpy(intrinsics).to(dtype),
+        c2w=torch.from_numpy(c2w).to(dtype),
+        names=names,
+        depths=None if depths is None else torch.from_numpy(depths * scale).to(dtype),
+    )
+
+
+def load_llff_scene(
+    scene_dir: str | Path, factor: int, n_views: int | None, test_every: int = 8,
+    reference_depth_dir: str | Path | None = None,
+) -> LLFFScene:
+    """Reads every frame of an LLFF scene at `images_{factor}`, with reference depth from `reference_depth_dir` if
+    given, else from `depths_{factor}/` if present."""
     scene_dir = Path(scene_dir)
     paths, poses_bounds = check_scene(scene_dir, factor)
     split = llff_split(len(paths), n_views, test_every)
@@ -142,23 +192,14 @@ def load_llff_scene(scene_dir: str | Path, factor: int, n_views: int, test_every
     intrinsics[:, 0, 0], intrinsics[:, 1, 1] = focal, focal
     intrinsics[:, 0, 2], intrinsics[:, 1, 2], intrinsics[:, 2, 2] = width / 2, height / 2, 1.0
 
+    names = [p.stem for p in paths]
     depths = None
     depth_dir = scene_dir / image_dir(scene_dir, factor).name.replace("images", "depths")
-    if depth_dir.is_dir():
-        depth_paths = [depth_dir / (p.stem + ".npy") for p in paths]
-        missing = [p for p in depth_paths if not p.is_file()]
-        if missing:
-            raise DataError(f"{depth_dir} lacks reference depth {missing[0].name} for image {paths[0].parent.name}")
-        depths = torch.from_numpy(np.stack([np.load(p) for p in depth_paths]) * scale)
-
-    dtype = torch.get_default_dtype()
-    views = Views(
-        images=torch.from_numpy(images).to(dtype) / 255.0,
-        intrinsics=torch.from_numpy(intrinsics).to(dtype),
-        c2w=torch.from_numpy(c2w).to(dtype),
-        names=[p.stem for p in paths],
-        depths=None if depths is None else depths.to(dtype),
-    )
+    if reference_depth_dir is not None:
+        depths = read_reference_depth(reference_depth_dir, names, height, width)
+    elif depth_dir.is_dir():
+        depths = read_reference_depth(depth_dir, names, height, width)
+    views = make_views(images, intrinsics, c2w, names, depths, scale)
     return LLFFScene(views=views, split=split, scale=scale, bounds=bounds * scale)
 
 
@@ -179,7 +220,7 @@ class LLFFDataModule(L.LightningDataModule):
     def __init__(
         self,
         scene_dir: str,
-        n_views: int = 2,
+        n_views: int | None = 2,
         factor: int = 4,
         rays_per_batch: int = 2048,
         test_every: int = 8,
@@ -189,11 +230,13 @@ class LLFFDataModule(L.LightningDataModule):
         sparse_rays_per_batch: int = 0,
         sparse_depth_cache: str = "data/cache/sparse_depth",
         sparse_depth_weighting: bool = False,
+        reference_depth_dir: str | None = None,
     ) -> None:
         """
         Args:
             scene_dir: the scene folder, e.g. data/nerf_llff_data/fern (holds poses_bounds.npy and images_N/).
-            n_views: number of training views (2, 3 or 4 in the paper).
+            n_views: number of training views (2, 3 or 4 in the paper); null: every non-test frame (the dense
+                reference NeRF, configs/dense/).
             factor: image downsampling factor: reads images_{factor}/ (1 reads images/); the paper uses 4.
             rays_per_batch: random training rays per iteration.
             test_every: every this-many-th frame is a test frame.
@@ -205,6 +248,9 @@ class LLFFDataModule(L.LightningDataModule):
             sparse_depth_cache: folder where the sparse depth of a scene, view set and resolution is cached.
             sparse_depth_weighting: weight each point by DS-NeRF's 2 exp(-(err / mean err)^2) of its reprojection
                 error (off in DS-NeRF's and SimpleNeRF's releases).
+            reference_depth_dir: folder of reference depth `<frame name>.npy` (camera z-depth in file units, e.g. a
+                dense NeRF's export by tools/export_reference_depth.py) for depth metrics; null: `depths_{factor}/`
+                next to the images if present (the synthetic scene's exact depth), else no depth metrics.
         """
         super().__init__()
         self.scene_dir, self.n_views, self.factor = Path(scene_dir), n_views, factor
@@ -212,6 +258,7 @@ class LLFFDataModule(L.LightningDataModule):
         self.seed, self.num_workers = seed, num_workers
         self.sparse_rays_per_batch, self.sparse_depth_cache = sparse_rays_per_batch, sparse_depth_cache
         self.sparse_depth_weighting = sparse_depth_weighting
+        self.reference_depth_dir = reference_depth_dir
         self.scene: LLFFScene | None = None
         self.sparse_depth: SparseDepthPool | None = None
 
@@ -221,7 +268,8 @@ class LLFFDataModule(L.LightningDataModule):
         self.setup(stage)
 
     def load_scene(self) -> LLFFScene:
-        return load_llff_scene(self.scene_dir, self.factor, self.n_views, self.test_every)
+        """All frames of the scene with the split; subclasses for other formats override this alone."""
+        return load_llff_scene(self.scene_dir, self.factor, self.n_views, self.test_every, self.reference_depth_dir)
 
     def setup(self, stage: str) -> None:
         if self.scene is None:

@@ -29,6 +29,20 @@ def test_split_reproduces_the_paper_table(scene, n_views):
     assert not set(split.train) & set(split.test)
 
 
+def test_dense_split_trains_on_every_non_test_frame():
+    split = llff_split(20, None)
+    assert split.test == [0, 8, 16] and split.val == [8]
+    assert split.train == [i for i in range(20) if i % 8]
+    assert split.test == llff_split(20, 2).test  # the same test frames as every few-view split
+
+
+def test_dense_data_module_loads_every_non_test_frame(synthetic_scene):
+    dm = LLFFDataModule(str(synthetic_scene), n_views=None, factor=1, rays_per_batch=100)
+    dm.setup("fit")
+    assert len(dm.train_views) == 17 and dm.scene.split.test == [0, 8, 16]
+    assert dm.train_views.depths is not None  # the synthetic scene's exact depth, as for few views
+
+
 def test_fern_loads_with_scaled_bounds():
     fern = require_shared("data/nerf_llff_data/fern")
     scene = load_llff_scene(fern, factor=8, n_views=2)

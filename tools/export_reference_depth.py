@@ -1,0 +1,43 @@
+"""Writes a dense NeRF's depth of every frame of its scene (see simplenerf.reference_depth), e.g.
+
+    python tools/export_reference_depth.py --config configs/dense/llff.yaml \
+        --ckpt runs/dense/llff/checkpoints/last.ckpt --out data/reference_depth/fern \
+        -- --data.init_args.scene_dir data/nerf_llff_data/fern
+
+Everything after `--` is passed to the CLI as overrides (use the ones the dense NeRF was trained with). Evaluate an
+n-view run against it with `--data.init_args.reference_depth_dir data/reference_depth/fern`. RealEstate-10K: the
+reference for n views is the dense NeRF trained with `--data.init_args.split_views n`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import torch
+
+from simplenerf.cli import make_cli, split_overrides
+from simplenerf.reference_depth import export_reference_depth
+
+
+def main() -> None:
+    own, overrides = split_overrides(sys.argv[1:])
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", required=True)
+    parser.add_argument("--ckpt", required=True, help="checkpoint of the dense NeRF")
+    parser.add_argument("--out", required=True, help="folder for <frame name>.npy (created if missing)")
+    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu",
+                        help="where to render (default: cuda if available, else cpu)")
+    args = parser.parse_args(own)
+    cli = make_cli(["--config", args.config, "--trainer.logger", "false", *overrides], run=False)
+    dm = cli.datamodule
+    dm.setup("test")
+    model = cli.model
+    model.load_state_dict(torch.load(args.ckpt, map_location="cpu", weights_only=False)["state_dict"])
+    model.eval().to(args.device)
+    paths = export_reference_depth(model.nerf, dm.scene, dm.near, model.hparams.chunk, args.out)
+    print(f"wrote {len(paths)} depth maps to {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,123 @@
+"""The paper's published scores, as data: reference rows for `tools/results_table.py --paper`.
+
+Numbers are strings exactly as printed (so "0.14" keeps its two decimals and a test can compare them with the .tex);
+`float()` them to compute. Keys follow the names of `test/summary.json`: `masked_lpips`, `masked_ssim`, `masked_psnr`,
+`masked_depth_mae`, `masked_depth_srocc` for scores on the pixels seen by at least two train views, and `lpips`, ...,
+`depth_srocc` for full-frame scores.
+
+The paper's main tables are masked scores: SPEC section 8 gives SimpleNeRF's masked 2-view LLFF means as PSNR 19.57,
+SSIM 0.650, LPIPS 0.269, depth MAE 0.142, SROCC 0.848, which are Table 1's 2-view SimpleNeRF row and the depth table's
+LLFF row. The supplement's full-frame ("values within parenthesis") and per-scene tables have no body in
+`paper/SimpleNeRF.tex`; the few full-frame numbers SPEC section 8 quotes from them are in FULL_FRAME and PER_SCENE,
+marked with that source.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+# The scenes the published means are over (SPEC section 6).
+LLFF_SCENES = ("fern", "flower", "fortress", "horns", "leaves", "orchids", "room", "trex")
+REALESTATE_SCENES = ("000c3ab189999a83", "000db54a47bd43fe", "0017ce4c6a39d122", "002ae53df0e0afe2", "0043978734eec081")
+
+# (n_views, summary key) -> value as printed.
+Scores = dict[tuple[int, str], str]
+
+
+@dataclass(frozen=True)
+class PaperTable:
+    """Published rows of one of the paper's tables (models in the paper's order), over the scenes it averages."""
+
+    label: str
+    caption: str
+    scenes: tuple[str, ...]
+    rows: dict[str, Scores]
+    # scene -> model -> scores, for the per-scene tables (only what SPEC quotes, see PER_SCENE).
+    per_scene: dict[str, dict[str, Scores]] = field(default_factory=dict)
+
+
+def _columns(views: tuple[int, ...], keys: tuple[str, ...]) -> list[tuple[int, str]]:
+    return [(v, k) for v in views for k in keys]
+
+
+# Tables 1 and 2: LPIPS, SSIM, PSNR at 2, 3 and 4 views, masked.
+MAIN_COLUMNS = _columns((2, 3, 4), ("masked_lpips", "masked_ssim", "masked_psnr"))
+# tab:quantitative-llff.
+LLFF_MAIN = {
+    "RegNeRF": ("0.3056", "0.5712", "18.52", "0.2908", "0.6334", "20.22", "0.2794", "0.6645", "21.32"),
+    "FreeNeRF": ("0.2638", "0.6322", "19.52", "0.2754", "0.6583", "20.93", "0.2848", "0.6764", "21.91"),
+    "DS-NeRF": ("0.3106", "0.5862", "18.24", "0.3031", "0.6321", "20.20", "0.2979", "0.6582", "21.23"),
+    "DDP-NeRF": ("0.2851", "0.6218", "18.73", "0.3250", "0.6152", "18.73", "0.3042", "0.6558", "20.17"),
+    "ViP-NeRF": ("0.2768", "0.6225", "18.61", "0.2798", "0.6548", "20.54", "0.2854", "0.6675", "20.75"),
+    "SimpleNeRF": ("0.2688", "0.6501", "19.57", "0.2559", "0.6940", "21.37", "0.2633", "0.7016", "21.99"),
+}
+# tab:quantitative-realestate.
+REALESTATE_MAIN = {
+    "RegNeRF": ("0.4129", "0.5916", "17.14", "0.4171", "0.6132", "17.86", "0.4316", "0.6257", "18.34"),
+    "FreeNeRF": ("0.5036", "0.5354", "14.70", "0.4635", "0.5708", "15.26", "0.5226", "0.6027", "16.31"),
+    "DS-NeRF": ("0.2709", "0.7983", "26.26", "0.2893", "0.8004", "26.50", "0.3103", "0.7999", "26.65"),
+    "DDP-NeRF": ("0.1290", "0.8640", "27.79", "0.1518", "0.8587", "26.67", "0.1563", "0.8617", "27.07"),
+    "ViP-NeRF": ("0.0687", "0.8889", "32.32", "0.0758", "0.8967", "31.93", "0.0892", "0.8968", "31.95"),
+    "SimpleNeRF": ("0.0635", "0.8942", "33.10", "0.0726", "0.8984", "33.21", "0.0847", "0.8987", "32.88"),
+}
+
+# tab:quantitative-depth: depth MAE and SROCC at 2 views, masked; LLFF then RealEstate-10K.
+DEPTH_COLUMNS = _columns((2,), ("masked_depth_mae", "masked_depth_srocc"))
+DEPTH = {
+    "DS-NeRF": (("0.2074", "0.7230"), ("0.7164", "0.6660")),
+    "DDP-NeRF": (("0.2048", "0.7480"), ("0.4831", "0.7921")),
+    "ViP-NeRF": (("0.1999", "0.7344"), ("0.3856", "0.8446")),
+    "SimpleNeRF": (("0.1420", "0.8480"), ("0.3269", "0.9215")),
+}
+
+# tab:quantitative-ablations: LPIPS and depth MAE at 2 views, masked; RealEstate-10K then LLFF.
+ABLATION_COLUMNS = _columns((2,), ("masked_lpips", "masked_depth_mae"))
+ABLATIONS = {
+    "SimpleNeRF": (("0.0635", "0.33"), ("0.2688", "0.14")),
+    "w/o points augmentation": (("0.0752", "0.38"), ("0.2832", "0.15")),
+    "w/o views augmentation": (("0.0790", "0.39"), ("0.2834", "0.15")),
+    "w/o coarse-fine consistency": (("0.0740", "0.42"), ("0.3002", "0.19")),
+    "w/o reliable depth": (("0.0687", "0.45"), ("0.3020", "0.22")),
+    "w/ identical augmentations": (("0.0777", "0.40"), ("0.2849", "0.15")),
+    "w/ smaller n/w as points aug": (("0.0740", "0.38"), ("0.2849", "0.15")),
+}
+
+# Full-frame SimpleNeRF scores quoted in SPEC section 8 (from the supplement, not in the .tex).
+FULL_FRAME = {
+    "llff": {"SimpleNeRF": {(2, "psnr"): "17.57", (2, "ssim"): "0.553", (2, "lpips"): "0.390",
+                            (2, "depth_mae"): "0.278", (2, "depth_srocc"): "0.753"}},
+}
+PER_SCENE = {
+    "llff": {scene: {"SimpleNeRF": {(2, "psnr"): psnr}}
+             for scene, psnr in (("fern", "17.01"), ("horns", "17.14"), ("fortress", "22.51"), ("room", "19.52"),
+                                 ("trex", "16.83"))},
+    "realestate": {"000c3ab189999a83": {"SimpleNeRF": {(2, "psnr"): "31.89"}}},
+}
+
+
+def _main_table(dataset: str, label: str, caption: str, scenes: tuple[str, ...], main: dict, depth_index: int
+                ) -> PaperTable:
+    rows: dict[str, Scores] = {model: dict(zip(MAIN_COLUMNS, values, strict=True)) for model, values in main.items()}
+    for model, values in DEPTH.items():
+        rows[model].update(zip(DEPTH_COLUMNS, values[depth_index], strict=True))
+    for model, scores in FULL_FRAME.get(dataset, {}).items():
+        rows[model].update(scores)
+    return PaperTable(label, caption, scenes, rows, PER_SCENE.get(dataset, {}))
+
+
+def _ablation_table(label: str, caption: str, scenes: tuple[str, ...], index: int) -> PaperTable:
+    rows = {model: dict(zip(ABLATION_COLUMNS, values[index], strict=True)) for model, values in ABLATIONS.items()}
+    return PaperTable(label, caption, scenes, rows)
+
+
+TABLES = {
+    "llff": _main_table("llff", "tab:quantitative-llff", "Table 1 (LLFF) and the depth table, masked", LLFF_SCENES,
+                        LLFF_MAIN, 0),
+    "realestate": _main_table("realestate", "tab:quantitative-realestate",
+                              "Table 2 (RealEstate-10K) and the depth table, masked", REALESTATE_SCENES,
+                              REALESTATE_MAIN, 1),
+    "llff-ablations": _ablation_table("tab:quantitative-ablations", "Table 3 (ablations, LLFF), masked",
+                                      LLFF_SCENES, 1),
+    "realestate-ablations": _ablation_table("tab:quantitative-ablations",
+                                            "Table 3 (ablations, RealEstate-10K), masked", REALESTATE_SCENES, 0),
+}

@@ -1,8 +1,9 @@
 """`python -m simplenerf {fit,validate,test,predict} --config ...`: LightningCLI with the project's defaults.
 
 Defaults every run gets: W&B logging (offline without credentials), a rich progress bar with rays/s, learning-rate
-logging, checkpoints under `<trainer.default_root_dir>/checkpoints` (resume with `--ckpt_path last`) and the
-evaluation callback (`--evaluation.*`) that writes test metrics and renders.
+logging, checkpoints under `<trainer.default_root_dir>/checkpoints` (resume with `--ckpt_path last`), the
+validation renders (`--val_renders.*`: RGB, depth, accumulation and error map of the validation view at every
+validation) and the evaluation callback (`--evaluation.*`) that writes test metrics and renders.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ class SimpleNeRFCLI(LightningCLI):
     def add_arguments_to_parser(self, parser) -> None:
         parser.add_lightning_class_args(Checkpointing, "checkpoint")
         parser.add_lightning_class_args(Evaluator, "evaluation")
+        parser.add_lightning_class_args(ValidationRenders, "val_renders")
         parser.link_arguments(
             "trainer.default_root_dir", "checkpoint.dirpath", compute_fn=lambda root: os.path.join(root, "checkpoints")
         )
@@ -48,9 +50,7 @@ def trainer_defaults() -> dict:
         "default_root_dir": "runs/default",
         "max_steps": 100000,
         "logger": lazy_instance(WandbLogger),
-        "callbacks": [
-            RichProgressBar(), RaysPerSecond(), LearningRateMonitor(logging_interval="step"), ValidationRenders()
-        ],
+        "callbacks": [RichProgressBar(), RaysPerSecond(), LearningRateMonitor(logging_interval="step")],
         "check_val_every_n_epoch": None,
         "val_check_interval": 5000,
         "num_sanity_val_steps": 0,

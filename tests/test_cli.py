@@ -73,6 +73,10 @@ def test_fit_writes_checkpoints_and_resumes(trained):
     assert {"mask_points_step000002.png", "mask_views_step000002.png", "mask_cfc_step000002.png"} <= {
         p.name for p in (trained / "run" / "val").iterdir()
     }
+    # ...and the validation renders of the validation view (simplenerf.visuals.ValidationRenders, a CLI default).
+    assert {f"step000004_{kind}.png" for kind in ("rgb", "depth", "accumulation", "error")} <= {
+        p.name for p in (trained / "run" / "val").iterdir()
+    }
 
 
 def test_validate_reports_psnr(trained):

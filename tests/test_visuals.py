@@ -118,7 +118,8 @@ def test_callback_skips_sanity_checks_and_honours_its_options(tmp_path):
         ValidationRenders(every_n_validations=0)
 
 
-def test_every_run_gets_the_callback():
-    from simplenerf.cli import trainer_defaults
+def test_every_run_gets_the_callback_configurable_from_the_cli():
+    from tests.test_configs import CONFIG_DIR, parse
 
-    assert any(isinstance(c, ValidationRenders) for c in trainer_defaults()["callbacks"])
+    assert parse(CONFIG_DIR / "demo.yaml").val_renders.every_n_validations == 1  # present without being configured
+    assert parse(CONFIG_DIR / "demo.yaml", "--val_renders.every_n_validations", "3").val_renders.every_n_validations == 3

@@ -30,5 +30,6 @@ def test_heldout_depth_error_joins_the_table(tmp_path):
     (tmp_path / "a" / "test" / "summary.json").write_text(json.dumps(summary))
     (tmp_path / "a" / "heldout_depth.json").write_text(json.dumps({"rel_error_mean": 0.25, "rel_error_median": 0.125}))
     table = markdown_table(load_summaries({"A": tmp_path / "a"}))
-    assert table.splitlines()[0] == "| run | psnr ↑ | ssim ↑ | lpips ↓ | heldout_rel_error_mean ↓ | heldout_rel_error_median ↓ |"
+    header = "| run | psnr ↑ | ssim ↑ | lpips ↓ | heldout_rel_error_mean ↓ | heldout_rel_error_median ↓ |"
+    assert table.splitlines()[0] == header
     assert table.splitlines()[2] == "| A | 20.0000 | 0.5000 | 0.3000 | 0.2500 | 0.1250 |"

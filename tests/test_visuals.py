@@ -122,4 +122,5 @@ def test_every_run_gets_the_callback_configurable_from_the_cli():
     from tests.test_configs import CONFIG_DIR, parse
 
     assert parse(CONFIG_DIR / "demo.yaml").val_renders.every_n_validations == 1  # present without being configured
-    assert parse(CONFIG_DIR / "demo.yaml", "--val_renders.every_n_validations", "3").val_renders.every_n_validations == 3
+    configured = parse(CONFIG_DIR / "demo.yaml", "--val_renders.every_n_validations", "3")
+    assert configured.val_renders.every_n_validations == 3

@@ -6,13 +6,16 @@ a saved PNG would be, round(clip(x, 0, 1) * 255), so that the reported numbers c
 
 Definitions (from the project SPEC):
 - PSNR: 10 log10(255^2 / MSE) per frame; with a mask the MSE runs over the masked pixels only. Identical images would
-  give +inf, which is capped at `PSNR_CAP`.
+  give +inf, which is capped at `PSNR_CAP` (100 dB), full-frame and masked alike, so that means over frames stay finite
+  and a perfect frame always reports exactly `PSNR_CAP`.
 - SSIM: 11x11 Gaussian window with sigma 1.5, K1 = 0.01, K2 = 0.03, data range 255, population (biased) local
   variances and covariance, averaged over the 'valid' window positions (no padding) and over channels.
   torchmetrics' SSIM is not used: it reflect-pads the images and averages over the padded full-size map, which
   differs from the 'valid' definition.
 - Depth MAE: mean(|gt - pred|) / median(gt) over the valid pixels, without any scale/shift alignment.
 - Depth SROCC: Spearman's rank correlation over the valid pixels, ties receiving average ranks (as scipy).
+- Masked scores (SPEC 7, `frame_scores`): PSNR and the depth metrics over the mask's pixels; SSIM and LPIPS of the
+  prediction with every pixel outside the mask replaced by the ground truth.
 
 The accumulation runs in float64 (float32 on MPS, which has no float64): SSIM's local variances E[x^2] - E[x]^2 on
 values up to 255 cancel badly in float32, and evaluation cost is negligible next to rendering.
@@ -20,6 +23,7 @@ values up to 255 cancel badly in float32, and evaluation cost is negligible next
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import torch
@@ -28,7 +32,13 @@ import torch.nn.functional as F
 from simplenerf.lpips import LPIPS
 
 PSNR_CAP = 100.0
-"""PSNR (dB) reported for a frame whose quantised prediction equals the quantised target."""
+"""PSNR (dB) reported for a frame (or masked region) whose quantised prediction equals the quantised target."""
+
+METRIC_NAMES = ("psnr", "ssim", "lpips", "depth_mae", "depth_srocc")
+"""Full-frame metrics, in the order of outputs and tables."""
+
+MASKED_METRIC_NAMES = tuple(f"masked_{name}" for name in METRIC_NAMES)
+"""The same metrics over a frame's visibility mask (`frame_scores`)."""
 
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
@@ -250,13 +260,46 @@ def evaluate_frame(
     return result
 
 
+def _finite_or_none(value: float | None) -> float | None:
+    return value if value is not None and math.isfinite(value) else None
+
+
+def frame_scores(
+    pred_rgb: torch.Tensor,
+    gt_rgb: torch.Tensor,
+    pred_depth: torch.Tensor | None = None,
+    gt_depth: torch.Tensor | None = None,
+    lpips_net: LPIPS | None = None,
+    mask: torch.Tensor | None = None,
+) -> dict[str, float | None]:
+    """Full-frame and masked metrics of one frame, keyed by `METRIC_NAMES` + `MASKED_METRIC_NAMES`.
+
+    A score that cannot be computed is None: the masked ones without a mask or with an empty mask, LPIPS without a
+    network, the depth ones without both depths, and any NaN (e.g. SROCC of a constant depth map).
+
+    Args:
+        pred_rgb, gt_rgb, pred_depth, gt_depth, lpips_net: as in `evaluate_frame`.
+        mask: optional [H, W] bool visibility mask, True on evaluated pixels.
+    """
+    full = evaluate_frame(pred_rgb, gt_rgb, pred_depth, gt_depth, lpips_net).as_dict()
+    scores = {name: _finite_or_none(full[name]) for name in METRIC_NAMES}
+    masked: dict[str, float | None] = dict.fromkeys(METRIC_NAMES)
+    if mask is not None and bool(mask.any()):
+        masked = evaluate_frame(pred_rgb, gt_rgb, pred_depth, gt_depth, lpips_net, mask).as_dict()
+    scores.update({f"masked_{name}": _finite_or_none(masked[name]) for name in METRIC_NAMES})
+    return scores
+
+
 __all__ = [
+    "MASKED_METRIC_NAMES",
+    "METRIC_NAMES",
     "PSNR_CAP",
     "FrameMetrics",
     "depth_mae",
     "depth_srocc",
     "evaluate_frame",
     "fill_unmasked",
+    "frame_scores",
     "lpips",
     "psnr",
     "quantize_8bit",

@@ -3,24 +3,38 @@
 from __future__ import annotations
 
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
 import scipy.stats
 import torch
 
-from simplenerf.lpips import LPIPS
+from simplenerf.lpips import LPIPS, WEIGHTS_ENV
 from simplenerf.metrics import (
+    MASKED_METRIC_NAMES,
+    METRIC_NAMES,
     PSNR_CAP,
     FrameMetrics,
     depth_mae,
     depth_srocc,
     evaluate_frame,
     fill_unmasked,
+    frame_scores,
     psnr,
     quantize_8bit,
     ssim,
 )
+from tests.conftest import require_shared
+
+
+def lpips_weights() -> Path:
+    """The real LPIPS weights: $SIMPLENERF_LPIPS_WEIGHTS if it names a file, else ../shared's npz (skip if absent)."""
+    env = os.environ.get(WEIGHTS_ENV)
+    if env and Path(env).is_file():
+        return Path(env)
+    return require_shared("data/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz")
 
 
 def _levels(values: np.ndarray) -> torch.Tensor:
@@ -171,3 +185,45 @@ def test_evaluate_frame() -> None:
     assert full.psnr < PSNR_CAP and full.ssim < 1.0
     assert full.lpips is None and full.depth_mae is None and full.depth_srocc is None
     assert set(full.as_dict()) == {"psnr", "ssim", "lpips", "depth_mae", "depth_srocc"}
+
+
+def test_frame_scores_of_a_perfect_prediction() -> None:
+    """Prediction = ground truth, with the real LPIPS network: the documented perfect scores, full and masked."""
+    net = LPIPS.from_weights(lpips_weights())
+    torch.manual_seed(4)
+    gt = torch.rand(40, 48, 3)
+    depth = torch.rand(40, 48) + 1.0
+    mask = torch.rand(40, 48) > 0.3
+    scores = frame_scores(gt.clone(), gt, depth.clone(), depth, net, mask)
+    assert list(scores) == [*METRIC_NAMES, *MASKED_METRIC_NAMES]
+    for prefix in ("", "masked_"):
+        assert scores[f"{prefix}psnr"] == PSNR_CAP
+        assert scores[f"{prefix}ssim"] == pytest.approx(1.0, abs=1e-12)
+        assert scores[f"{prefix}lpips"] == 0.0
+        assert scores[f"{prefix}depth_mae"] == 0.0
+        assert scores[f"{prefix}depth_srocc"] == pytest.approx(1.0, abs=1e-12)
+
+
+def test_frame_scores_masked_equal_evaluate_frame_and_null_when_not_computable() -> None:
+    torch.manual_seed(5)
+    gt = torch.rand(24, 24, 3)
+    pred = (gt + 0.1 * torch.randn(24, 24, 3)).clamp(0, 1)
+    depth = torch.rand(24, 24) + 1.0
+    mask = torch.zeros(24, 24, dtype=torch.bool)
+    mask[4:20, 2:18] = True
+    scores = frame_scores(pred, gt, 1.1 * depth, depth, None, mask)
+    full = evaluate_frame(pred, gt, 1.1 * depth, depth)
+    masked = evaluate_frame(pred, gt, 1.1 * depth, depth, None, mask)
+    assert {k: scores[k] for k in METRIC_NAMES} == full.as_dict()
+    assert {k: scores[f"masked_{k}"] for k in METRIC_NAMES} == masked.as_dict()
+    assert scores["lpips"] is None and scores["masked_lpips"] is None
+    assert scores["masked_psnr"] != scores["psnr"]
+
+    no_mask = frame_scores(pred, gt, depth, depth)
+    empty = frame_scores(pred, gt, depth, depth, None, torch.zeros(24, 24, dtype=torch.bool))
+    for scores in (no_mask, empty):
+        assert all(scores[k] is None for k in MASKED_METRIC_NAMES)
+    # SROCC of a constant depth map is undefined (NaN): reported as None, not NaN.
+    constant = frame_scores(pred, gt, torch.ones(24, 24), depth, None, mask)
+    assert constant["depth_srocc"] is None and constant["masked_depth_srocc"] is None
+    assert constant["depth_mae"] is not None

@@ -1,0 +1,47 @@
+"""Visibility masks of a scene's test frames (SPEC 7, see simplenerf.visibility), e.g.
+
+    python tools/make_visibility_masks.py --config configs/llff.yaml \
+        -- --data.init_args.scene_dir data/nerf_llff_data/fern --data.init_args.reference_depth_dir DIR
+
+Everything after `--` is passed to the CLI as overrides; the data module's split (n_views) decides the train views.
+Writes `<out>/<frame>.png` (white = visible, i.e. evaluated by the masked scores) and `<out>/<frame>.npy` (bool), by
+default under `<trainer.default_root_dir>/visibility`, and prints the visible fraction of each frame. The scene needs
+reference depth: the synthetic scene has it; for real scenes train a dense NeRF (configs/dense/*.yaml) and export its
+depth with tools/export_reference_depth.py. `python -m simplenerf test` computes the same masks itself.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from simplenerf.cli import make_cli, split_overrides
+from simplenerf.errors import SimpleNeRFError
+from simplenerf.evaluation import export_visibility_masks
+from simplenerf.visibility import MIN_VIEWS
+
+
+def main() -> None:
+    own, overrides = split_overrides(sys.argv[1:])
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", required=True)
+    parser.add_argument("--out", help="output folder (default: <trainer.default_root_dir>/visibility)")
+    parser.add_argument("--min-views", type=int, default=MIN_VIEWS, help="train views that must see a pixel")
+    args = parser.parse_args(own)
+    try:
+        cli = make_cli(["--config", args.config, "--trainer.logger", "false", *overrides], run=False)
+        dm = cli.datamodule
+        dm.setup("test")
+        out = Path(args.out or Path(cli.trainer.default_root_dir) / "visibility")
+        fractions = export_visibility_masks(dm.scene, out, args.min_views, getattr(dm, "scene_dir", None))
+    except SimpleNeRFError as e:
+        print(f"simplenerf: error: {e}", file=sys.stderr)
+        sys.exit(2)
+    print(f"visibility masks of {len(fractions)} test frames (train frames {dm.scene.split.train}) in {out}:")
+    for name, fraction in fractions.items():
+        print(f"  {name}: {100 * fraction:.1f}% visible")
+
+
+if __name__ == "__main__":
+    main()

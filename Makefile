@@ -1,5 +1,5 @@
 # The two commands of the README. Each creates .venv if missing, installs, then runs.
-#   make demo   trains SimpleNeRF and DS-NeRF on the built-in synthetic scene, tests both (metrics + renders)
+#   make demo   trains SimpleNeRF and DS-NeRF on the built-in synthetic scene, tests both (metrics + renders), video
 #   make test   runs the test suite
 PYTHON ?= python3
 VENV := .venv
@@ -31,8 +31,10 @@ demo: $(VENV)/.installed
 	$(PY) -m simplenerf test --config configs/demo.yaml --ckpt_path last
 	$(PY) -m simplenerf fit $(DSNERF)
 	$(PY) -m simplenerf test $(DSNERF) --ckpt_path last
+	$(PY) tools/render_video.py --config configs/demo.yaml --ckpt runs/demo/checkpoints/last.ckpt
 	@echo "Test metrics on the synthetic scene (3 views, same budget), renders in runs/demo*/test:"
 	@$(PY) tools/compare_runs.py SimpleNeRF=runs/demo DS-NeRF=runs/demo_dsnerf
+	@echo "SimpleNeRF's spiral video ([RGB | depth]): runs/demo/video_spiral.mp4"
 
 test: $(VENV)/.installed
 	$(PY) -m pytest -q

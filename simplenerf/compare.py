@@ -5,12 +5,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from simplenerf.evaluation import METRICS
+from simplenerf.evaluation import ALL_METRICS
 
 # Depth error at held-out SfM points (tools/heldout_depth_error.py --out <run>/heldout_depth.json), for real scenes
 # without a reference depth.
 HELDOUT = {"heldout_rel_error_mean": "rel_error_mean", "heldout_rel_error_median": "rel_error_median"}
-LOWER_IS_BETTER = {"lpips", "depth_mae", *HELDOUT}
+LOWER_IS_BETTER = {"lpips", "depth_mae", "masked_lpips", "masked_depth_mae", *HELDOUT}
 
 
 def load_summaries(runs: dict[str, Path]) -> dict[str, dict]:
@@ -32,7 +32,7 @@ def load_summaries(runs: dict[str, Path]) -> dict[str, dict]:
 
 def markdown_table(summaries: dict[str, dict]) -> str:
     """One row per run, one column per metric (arrows say which way is better)."""
-    metrics = [m for m in (*METRICS, *HELDOUT) if any(s.get(m) is not None for s in summaries.values())]
+    metrics = [m for m in (*ALL_METRICS, *HELDOUT) if any(s.get(m) is not None for s in summaries.values())]
     arrow = {m: "↓" if m in LOWER_IS_BETTER else "↑" for m in metrics}
     lines = ["| run | " + " | ".join(f"{m} {arrow[m]}" for m in metrics) + " |",
              "|---|" + "---:|" * len(metrics)]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 
 import lightning as L
-from lightning.pytorch.callbacks import ModelCheckpoint
+from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 
 
 class RaysPerSecond(L.Callback):
@@ -30,6 +30,22 @@ class RaysPerSecond(L.Callback):
         self._rate = rate if self._rate is None else self.smoothing * self._rate + (1 - self.smoothing) * rate
         pl_module.log("rays_per_s", self._rate, prog_bar=True, logger=False)
         pl_module.log("train/rays_per_s", rate)
+
+
+class LearningRates(LearningRateMonitor):
+    """Logs the learning rate every step; does nothing when the run has no logger (`--trainer.logger false`), where
+    Lightning's own monitor refuses to start."""
+
+    def __init__(self) -> None:
+        super().__init__(logging_interval="step")
+
+    def on_train_start(self, trainer, *args, **kwargs) -> None:
+        if trainer.loggers:
+            super().on_train_start(trainer, *args, **kwargs)
+
+    def on_train_batch_start(self, trainer, *args, **kwargs) -> None:
+        if trainer.loggers:
+            super().on_train_batch_start(trainer, *args, **kwargs)
 
 
 class Checkpointing(ModelCheckpoint):

@@ -10,14 +10,17 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable
+from pathlib import Path
 
+import torch
 from jsonargparse import lazy_instance
 from lightning.pytorch import LightningDataModule
-from lightning.pytorch.callbacks import LearningRateMonitor, RichProgressBar
+from lightning.pytorch.callbacks import RichProgressBar
 from lightning.pytorch.cli import LightningCLI
 
-from simplenerf.callbacks import Checkpointing, RaysPerSecond
-from simplenerf.errors import SimpleNeRFError
+from simplenerf.callbacks import Checkpointing, LearningRates, RaysPerSecond
+from simplenerf.errors import DataError, SimpleNeRFError
 from simplenerf.evaluation import Evaluator
 from simplenerf.loggers import WandbLogger
 from simplenerf.lpips import LPIPSWeightsNotFound
@@ -50,7 +53,7 @@ def trainer_defaults() -> dict:
         "default_root_dir": "runs/default",
         "max_steps": 100000,
         "logger": lazy_instance(WandbLogger),
-        "callbacks": [RichProgressBar(), RaysPerSecond(), LearningRateMonitor(logging_interval="step")],
+        "callbacks": [RichProgressBar(), RaysPerSecond(), LearningRates()],
         "check_val_every_n_epoch": None,
         "val_check_interval": 5000,
         "num_sanity_val_steps": 0,
@@ -70,6 +73,30 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
     )
 
 
+def load_for_tool(
+    configs: list[str], overrides: list[str], stage: str = "test", ckpt: str | None = None, device: str = "cpu"
+) -> LightningCLI:
+    """What the tools in tools/ start from: the CLI of `configs` + `overrides` without a logger, its data module set
+    up for `stage` and, with `ckpt`, the model's trained weights loaded (eval mode, on `device`)."""
+    if ckpt is not None and not Path(ckpt).is_file():
+        raise DataError(f"checkpoint {ckpt} does not exist")
+    cli = make_cli([*(a for c in configs for a in ("--config", c)), *overrides, "--trainer.logger", "false"], run=False)
+    cli.datamodule.setup(stage)
+    if ckpt is not None:
+        cli.model.load_state_dict(torch.load(ckpt, map_location="cpu", weights_only=False)["state_dict"])
+        cli.model.to(device).eval()
+    return cli
+
+
+def run_tool(main_function: Callable[[], None], name: str) -> None:
+    """Runs a tool's main; bad input ends with one `<name>: error:` line and exit status 2, as in `main`."""
+    try:
+        main_function()
+    except (SimpleNeRFError, LPIPSWeightsNotFound) as e:
+        print(f"{name}: error: {e}", file=sys.stderr)
+        sys.exit(2)
+
+
 def split_overrides(argv: list[str]) -> tuple[list[str], list[str]]:
     """A tool's own arguments and, after `--`, the overrides it passes to the CLI."""
     if "--" not in argv:
@@ -80,8 +107,4 @@ def split_overrides(argv: list[str]) -> tuple[list[str], list[str]]:
 
 def main(args: list[str] | None = None) -> None:
     """Entry point; bad input ends with one `error:` line and exit status 2 instead of a traceback."""
-    try:
-        make_cli(args)
-    except (SimpleNeRFError, LPIPSWeightsNotFound) as e:
-        print(f"simplenerf: error: {e}", file=sys.stderr)
-        sys.exit(2)
+    run_tool(lambda: make_cli(args), "simplenerf")

@@ -182,3 +182,10 @@ def test_unreadable_image_stops_before_anything_is_written(synthetic_scene, tmp_
         f"simplenerf: error: cannot read image {scene / 'images' / '005.png'} (missing, truncated or not an image)"
     )
     assert not (tmp_path / "run" / "wandb").exists() and not (tmp_path / "run" / "checkpoints").exists()
+
+
+def test_fit_without_a_logger(tmp_path):
+    args = run_args(tmp_path)
+    assert args[-2] == "--trainer.logger.init_args.save_dir"
+    run("fit", *args[:-2], "--trainer.logger", "false", "--trainer.max_steps", "1")
+    assert (tmp_path / "run/checkpoints/last.ckpt").is_file() and not (tmp_path / "run/wandb").exists()

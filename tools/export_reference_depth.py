@@ -16,7 +16,7 @@ import sys
 
 import torch
 
-from simplenerf.cli import make_cli, split_overrides
+from simplenerf.cli import load_for_tool, run_tool, split_overrides
 from simplenerf.reference_depth import export_reference_depth
 
 
@@ -29,15 +29,11 @@ def main() -> None:
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu",
                         help="where to render (default: cuda if available, else cpu)")
     args = parser.parse_args(own)
-    cli = make_cli(["--config", args.config, "--trainer.logger", "false", *overrides], run=False)
-    dm = cli.datamodule
-    dm.setup("test")
-    model = cli.model
-    model.load_state_dict(torch.load(args.ckpt, map_location="cpu", weights_only=False)["state_dict"])
-    model.eval().to(args.device)
+    cli = load_for_tool([args.config], overrides, ckpt=args.ckpt, device=args.device)
+    dm, model = cli.datamodule, cli.model
     paths = export_reference_depth(model.nerf, dm.scene, dm.near, model.hparams.chunk, args.out)
     print(f"wrote {len(paths)} depth maps to {args.out}")
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main, "export_reference_depth")

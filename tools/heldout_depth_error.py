@@ -14,9 +14,7 @@ import json
 import sys
 from pathlib import Path
 
-import torch
-
-from simplenerf.cli import make_cli, split_overrides
+from simplenerf.cli import load_for_tool, run_tool, split_overrides
 from simplenerf.sfm_reference import heldout_depth_error, heldout_observations
 
 
@@ -28,12 +26,8 @@ def main() -> None:
     parser.add_argument("--cache", default="data/cache/sparse_depth", help="where the SfM reference is cached")
     parser.add_argument("--out", help="also write the JSON result to this file")
     args = parser.parse_args(own)
-    cli = make_cli(["--config", args.config, "--trainer.logger", "false", *overrides], run=False)
-    dm = cli.datamodule
-    dm.setup("test")
-    model = cli.model
-    model.load_state_dict(torch.load(args.ckpt, map_location="cpu", weights_only=False)["state_dict"])
-    model.eval()
+    cli = load_for_tool([args.config], overrides, ckpt=args.ckpt)
+    dm, model = cli.datamodule, cli.model
     observations = heldout_observations(dm.scene, args.cache, str(dm.scene_dir.resolve()))
     result = heldout_depth_error(model.nerf, dm.scene, observations, dm.near, model.hparams.chunk)
     line = json.dumps({"ckpt": args.ckpt, "overrides": overrides, **result})
@@ -43,4 +37,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main, "heldout_depth_error")

@@ -16,8 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from simplenerf.cli import make_cli, split_overrides
-from simplenerf.errors import SimpleNeRFError
+from simplenerf.cli import load_for_tool, run_tool, split_overrides
 from simplenerf.evaluation import export_visibility_masks
 from simplenerf.visibility import MIN_VIEWS
 
@@ -29,19 +28,14 @@ def main() -> None:
     parser.add_argument("--out", help="output folder (default: <trainer.default_root_dir>/visibility)")
     parser.add_argument("--min-views", type=int, default=MIN_VIEWS, help="train views that must see a pixel")
     args = parser.parse_args(own)
-    try:
-        cli = make_cli(["--config", args.config, "--trainer.logger", "false", *overrides], run=False)
-        dm = cli.datamodule
-        dm.setup("test")
-        out = Path(args.out or Path(cli.trainer.default_root_dir) / "visibility")
-        fractions = export_visibility_masks(dm.scene, out, args.min_views, getattr(dm, "scene_dir", None))
-    except SimpleNeRFError as e:
-        print(f"simplenerf: error: {e}", file=sys.stderr)
-        sys.exit(2)
+    cli = load_for_tool([args.config], overrides)
+    dm = cli.datamodule
+    out = Path(args.out or Path(cli.trainer.default_root_dir) / "visibility")
+    fractions = export_visibility_masks(dm.scene, out, args.min_views, getattr(dm, "scene_dir", None))
     print(f"visibility masks of {len(fractions)} test frames (train frames {dm.scene.split.train}) in {out}:")
     for name, fraction in fractions.items():
         print(f"  {name}: {100 * fraction:.1f}% visible")
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main, "simplenerf")

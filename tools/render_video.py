@@ -17,8 +17,7 @@ from pathlib import Path
 
 import torch
 
-from simplenerf.cli import make_cli, split_overrides
-from simplenerf.errors import DataError, SimpleNeRFError
+from simplenerf.cli import load_for_tool, run_tool, split_overrides
 from simplenerf.trajectories import scene_trajectory
 from simplenerf.video import downscale_intrinsics, render_video
 
@@ -42,15 +41,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 def main() -> None:
     own, overrides = split_overrides(sys.argv[1:])
     args = parse_args(own)
-    if not Path(args.ckpt).is_file():
-        raise DataError(f"checkpoint {args.ckpt} does not exist")
-    configs = [item for path in args.config for item in ("--config", path)]
-    cli = make_cli([*configs, *overrides, "--trainer.logger", "false"], run=False)  # no logging from a tool
-    dm = cli.datamodule
-    dm.setup("test")
-    model = cli.model
-    model.load_state_dict(torch.load(args.ckpt, map_location="cpu", weights_only=False)["state_dict"])
-    model.to(args.device).eval()
+    cli = load_for_tool(args.config, overrides, ckpt=args.ckpt, device=args.device)
+    dm, model = cli.datamodule, cli.model
 
     kind = args.path or getattr(dm, "video_trajectory", "spiral")
     scene = dm.scene
@@ -68,8 +60,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    try:
-        main()
-    except SimpleNeRFError as e:
-        print(f"render_video: error: {e}", file=sys.stderr)
-        sys.exit(2)
+    run_tool(main, "render_video")

@@ -31,7 +31,7 @@ demo: $(VENV)/.installed
 	$(PY) -m simplenerf test --config configs/demo.yaml --ckpt_path last
 	$(PY) -m simplenerf fit $(DSNERF)
 	$(PY) -m simplenerf test $(DSNERF) --ckpt_path last
-	$(PY) tools/render_video.py --config configs/demo.yaml --ckpt runs/demo/checkpoints/last.ckpt
+	$(PY) tools/render_video.py --config configs/demo.yaml --ckpt runs/demo/checkpoints/last.ckpt --factor-down 2
 	@echo "Test metrics on the synthetic scene (3 views, same budget), renders in runs/demo*/test:"
 	@$(PY) tools/compare_runs.py SimpleNeRF=runs/demo DS-NeRF=runs/demo_dsnerf
 	@echo "SimpleNeRF's spiral video ([RGB | depth]): runs/demo/video_spiral.mp4"

@@ -64,8 +64,8 @@ def trainer_defaults() -> dict:
 def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[LightningCLI] = SimpleNeRFCLI):
     """The CLI on `args` (None: sys.argv). With run=False it only builds model, data module and trainer (tools).
 
-    Every entry point comes through here, so this is also where the process starts keeping freed host memory for
-    reuse (`simplenerf.memory`: a third of a CPU training step was page faults without it).
+    Every entry point comes through here, so this is also where SIMPLENERF_MALLOC=reuse takes effect (keep freed
+    host memory for reuse: fewer page faults, more memory; see `simplenerf.memory`).
     """
     reuse_freed_memory()
     return cli_class(

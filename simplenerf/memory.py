@@ -5,10 +5,10 @@ glibc serves every allocation above 32 MB with a fresh mmap and unmaps it on fre
 its activations in again, and the kernel zero-fills every page. On this project's 2-core CPU that was a third of a
 paper-config step's CPU time (512 + 512 rays: 8.8 s of system time per step against 14 s of user time, 3.9 M page
 faults; with freed memory kept: 0.5 to 1.3 s, 60 k to 180 k faults). Keeping freed memory in the heap makes later steps
-reuse the same pages. The peak memory is unchanged (the same tensors are alive at the peak); the process just does not
-shrink between steps.
-
-Set SIMPLENERF_MALLOC=default to keep glibc's behaviour. Nothing happens on other C libraries or systems.
+reuse the same pages, but a heap cannot give back or merge blocks freed in its middle, so the process grows: the
+paper's SimpleNeRF config (2048 + 2048 rays) reached 12.7 GiB in bf16 at 41 s per step, but in fp32 it passed 24 GiB and
+was killed (out of memory), where glibc's default peaks near 18 GiB. So it is opt-in: SIMPLENERF_MALLOC=reuse.
+Nothing happens on other C libraries or systems.
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ M_MMAP_MAX = -4
 
 
 def reuse_freed_memory() -> bool:
-    """Tells glibc's malloc to serve large blocks from the heap (no mmap) and to keep up to 2 GiB of freed memory at
-    the heap's top. Returns whether it applied (False on non-glibc systems or with SIMPLENERF_MALLOC=default)."""
-    if os.environ.get("SIMPLENERF_MALLOC") == "default" or not sys.platform.startswith("linux"):
+    """With SIMPLENERF_MALLOC=reuse, tells glibc's malloc to serve large blocks from the heap (no mmap) and to keep up
+    to 2 GiB of freed memory at the heap's top. Returns whether it applied (never on non-glibc systems)."""
+    if os.environ.get("SIMPLENERF_MALLOC") != "reuse" or not sys.platform.startswith("linux"):
         return False
     try:
         mallopt = ctypes.CDLL("libc.so.6").mallopt

@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
 # The CPU quality benchmark: SimpleNeRF (bidirectional and one_way supervision) vs the DS-NeRF baseline on LLFF fern,
 # images_8, 2 views, small networks, the same 5000-iteration budget (configs/cpu/*.yaml, about 30 minutes per
-# SimpleNeRF run on a 2-core CPU). For each run: fit, test (PSNR / SSIM / LPIPS on the 3 test frames) and the depth
-# error at held-out SfM points (tools/heldout_depth_error.py); then one table of all runs.
+# SimpleNeRF run on an idle 2-core CPU). For each run: fit, test (PSNR / SSIM / LPIPS on the 3 test frames) and the
+# depth error at held-out SfM points (tools/heldout_depth_error.py); then one table of all runs.
 #
 #   tools/benchmark_fern_cpu.sh                       # all three, one after another
 #   tools/benchmark_fern_cpu.sh one_way               # one of: bidirectional one_way dsnerf
 #   OMP_NUM_THREADS=1 tools/benchmark_fern_cpu.sh dsnerf & OMP_NUM_THREADS=1 tools/benchmark_fern_cpu.sh one_way &
+#   tools/benchmark_fern_cpu.sh --step 2000 bidirectional one_way dsnerf
+#       # no training: scores the runs' step-2000 checkpoints into runs/cpu/step002000/fern_<variant>/
 #
 # SCENE (default ../shared/data/nerf_llff_data/fern), PYTHON (default .venv/bin/python), RUNS (default runs/cpu) and
 # EXTRA (more CLI overrides, e.g. EXTRA="--trainer.max_steps 10" for a smoke test) can be set.
@@ -18,6 +20,9 @@ RUNS=${RUNS:-runs/cpu}
 export WANDB_MODE=${WANDB_MODE:-offline}
 LPIPS_NPZ=../shared/data/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz
 [ -f "$LPIPS_NPZ" ] && export SIMPLENERF_LPIPS_WEIGHTS=${SIMPLENERF_LPIPS_WEIGHTS:-$LPIPS_NPZ}
+
+step=""
+if [ "${1:-}" = "--step" ]; then step=$(printf "%06d" "$2"); shift 2; fi
 
 args_of() {  # config arguments of a variant
   case $1 in
@@ -35,17 +40,24 @@ for variant in "${variants[@]}"; do
   # shellcheck disable=SC2046
   set -- $(args_of "$variant") --data.init_args.scene_dir "$SCENE" ${EXTRA:-}
   config=$2 model_args=("${@:3}")
-  set -- "$@" --trainer.default_root_dir "$run" --trainer.logger.init_args.save_dir "$run"
-  start=$(date +%s)
-  "$PYTHON" -m simplenerf fit "$@"
-  echo "$variant: fit took $(( $(date +%s) - start )) s" | tee "$run/fit_time.txt"
-  "$PYTHON" -m simplenerf test "$@" --ckpt_path last
-  "$PYTHON" tools/heldout_depth_error.py --config "$config" --ckpt "$run/checkpoints/last.ckpt" \
-    --out "$run/heldout_depth.json" -- "${model_args[@]}"
+  if [ -z "$step" ]; then  # train, then score the last checkpoint into the run folder
+    out=$run ckpt=$run/checkpoints/last.ckpt
+    start=$(date +%s)
+    "$PYTHON" -m simplenerf fit "$@" --trainer.default_root_dir "$run" --trainer.logger.init_args.save_dir "$run"
+    echo "$variant: fit took $(( $(date +%s) - start )) s" | tee "$run/fit_time.txt"
+  else  # score an intermediate checkpoint into its own folder
+    out=$RUNS/step$step/fern_$variant ckpt=$run/checkpoints/step$step.ckpt
+  fi
+  "$PYTHON" -m simplenerf test "$@" --trainer.logger false --trainer.default_root_dir "$out" \
+    --evaluation.output_dir "$out/test" --ckpt_path "$ckpt"
+  "$PYTHON" tools/heldout_depth_error.py --config "$config" --ckpt "$ckpt" --out "$out/heldout_depth.json" \
+    -- "${model_args[@]}"
 done
 
 table=()
 for variant in bidirectional one_way dsnerf; do
-  [ -f "$RUNS/fern_$variant/test/summary.json" ] && table+=("$variant=$RUNS/fern_$variant")
+  out=$RUNS/fern_$variant
+  [ -z "$step" ] || out=$RUNS/step$step/fern_$variant
+  [ -f "$out/test/summary.json" ] && table+=("$variant=$out")
 done
 "$PYTHON" tools/compare_runs.py "${table[@]}"

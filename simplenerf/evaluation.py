@@ -9,6 +9,7 @@ bad input never leaves half-written files over the results of an earlier run.
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import os
 import shutil
@@ -85,8 +86,9 @@ def export_visibility_masks(
     return fractions
 
 
+@functools.cache
 def git_commit() -> str | None:
-    """The commit of the code being run, if it runs from a git checkout."""
+    """The commit of the code being run, if it runs from a git checkout (read once per process)."""
     try:
         root = Path(__file__).resolve().parent
         out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10)

@@ -6,7 +6,6 @@ with the terms that are configured; evaluation (metrics, files) is the `evaluati
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Literal
 
 import lightning as L
@@ -15,12 +14,12 @@ import torch
 from torch import nn
 
 from simplenerf.augmentations import Augmentation
-from simplenerf.evaluation import write_png
 from simplenerf.losses import color_loss, sparse_depth_loss
 from simplenerf.metrics import psnr
 from simplenerf.nerf import NeRF
-from simplenerf.rays import RayBundle, make_rays
+from simplenerf.rays import RayBundle, make_rays, pixel_grid
 from simplenerf.reliability import MaskContext, ReliabilityMask, mask_fractions, masked_depth_loss, nearest_views
+from simplenerf.visuals import publish_picture
 
 
 class SimpleNeRF(L.LightningModule):
@@ -149,13 +148,8 @@ class SimpleNeRF(L.LightningModule):
             self.log_dict({f"val/mask_{name}/{k}": v for k, v in mask_fractions(m).items()}, sync_dist=True)
             if not self.trainer.is_global_zero:  # every rank computed the same maps; one writes them
                 continue
-            picture = mask_picture(m)
-            log_image = getattr(self.logger, "log_image", None)
-            if log_image is not None:
-                log_image(key=f"val/mask_{name}", images=[picture], step=self.global_step)
-            out = Path(self.trainer.default_root_dir) / "val"
-            out.mkdir(parents=True, exist_ok=True)
-            write_png(out / f"mask_{name}_step{self.global_step:06d}.png", picture)
+            file_name = f"mask_{name}_step{self.global_step:06d}.png"
+            publish_picture(self.trainer, f"val/mask_{name}", mask_picture(m), file_name)
 
     @torch.no_grad()
     def reliability_maps(self, view: int) -> dict[str, torch.Tensor]:
@@ -163,8 +157,7 @@ class SimpleNeRF(L.LightningModule):
         assert self.train_views is not None, "on_fit_start did not run"
         images, intrinsics, c2w, _ = self.train_views
         h, w = images.shape[1:3]
-        v, u = torch.meshgrid(torch.arange(h, device=self.device), torch.arange(w, device=self.device), indexing="ij")
-        uv = torch.stack([u.flatten(), v.flatten()], dim=-1)
+        uv = pixel_grid(h, w, self.device)
         views = torch.full((h * w,), view, device=self.device)
         maps: dict[str, list[torch.Tensor]] = {}
         for start in range(0, h * w, self.hparams.chunk):

@@ -46,6 +46,12 @@ class RayBundle:
         return cls(*(batch[prefix + f.name] for f in fields(cls)))
 
 
+def pixel_grid(height: int, width: int, device: torch.device | str | None = None) -> torch.Tensor:
+    """Every pixel (u, v) of an image, row-major (v outer, u inner): [height * width, 2] long, (column, row)."""
+    v, u = torch.meshgrid(torch.arange(height, device=device), torch.arange(width, device=device), indexing="ij")
+    return torch.stack([u.flatten(), v.flatten()], dim=-1)
+
+
 def pixel_rays(intrinsics: torch.Tensor, c2w: torch.Tensor, uv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """World rays through pixels.
 

@@ -18,15 +18,12 @@ from tqdm import tqdm
 
 from simplenerf.evaluation import colorize_depth
 from simplenerf.nerf import NeRF
-from simplenerf.rays import RayBundle, make_rays
+from simplenerf.rays import RayBundle, make_rays, pixel_grid
 
 
 def frame_rays(c2w: torch.Tensor, intrinsics: torch.Tensor, height: int, width: int, near: float) -> RayBundle:
     """Rays of every pixel of one camera, row-major (as `data.datasets.Frames`): c2w [3, 4], intrinsics [3, 3]."""
-    v, u = torch.meshgrid(
-        torch.arange(height, device=c2w.device), torch.arange(width, device=c2w.device), indexing="ij"
-    )
-    uv = torch.stack([u.flatten(), v.flatten()], dim=-1)
+    uv = pixel_grid(height, width, c2w.device)
     return RayBundle.from_batch(make_rays(intrinsics[None], c2w[None], uv, width, height, near))
 
 

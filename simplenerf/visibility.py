@@ -23,7 +23,7 @@ import torch
 from tqdm import tqdm
 
 from simplenerf.data.datasets import Views
-from simplenerf.rays import pixel_rays, project
+from simplenerf.rays import pixel_grid, pixel_rays, project
 
 RELATIVE_TOLERANCE = 0.05
 """A train view sees a test pixel if the depths agree within this fraction of the train view's maximum depth."""
@@ -59,9 +59,8 @@ def forward_warp_depth(
     assert depth.ndim == 2, f"depth must be [H, W], got {tuple(depth.shape)}"
     like = {"device": depth.device, "dtype": depth.dtype}
     h, w = depth.shape
-    v, u = torch.meshgrid(torch.arange(h, device=depth.device), torch.arange(w, device=depth.device), indexing="ij")
     keep = _valid(depth).reshape(-1)
-    uv = torch.stack([u.reshape(-1), v.reshape(-1)], dim=-1)[keep]  # [P, 2]
+    uv = pixel_grid(h, w, depth.device)[keep]  # [P, 2]
     origins, directions = pixel_rays(intrinsics.to(**like)[None], c2w.to(**like)[None], uv)
     points = origins + depth.reshape(-1)[keep, None] * directions  # [P, 3]
     target_uv, z = project(points, target_intrinsics.to(**like)[None], target_c2w.to(**like)[None])

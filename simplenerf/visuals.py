@@ -60,6 +60,22 @@ def render_pictures(pred: dict[str, torch.Tensor], target: torch.Tensor, max_err
     }
 
 
+def publish_picture(trainer: L.Trainer, key: str, picture: np.ndarray, file_name: str, caption: str | None = None,
+                    log: bool = True, save: bool = True) -> None:
+    """Sends a picture [H, W, 3] to every logger that takes images (W&B: `key`, at the trainer's step) and, on global
+    rank 0, writes it to `<trainer.default_root_dir>/val/<file_name>`."""
+    if log:
+        for logger in trainer.loggers:
+            log_image = getattr(logger, "log_image", None)
+            if log_image is not None:
+                extra = {} if caption is None else {"caption": [caption]}
+                log_image(key=key, images=[picture], step=trainer.global_step, **extra)
+    if save and trainer.is_global_zero:
+        out = Path(trainer.default_root_dir) / "val"
+        out.mkdir(parents=True, exist_ok=True)
+        write_png(out / file_name, picture)
+
+
 class ValidationRenders(L.Callback):
     """Pictures of the validation frame at every validation: predicted RGB, colourised depth (inverse depth, near =
     warm), accumulation (grey) and |pred - gt| (with the frame's PSNR in the caption).
@@ -103,15 +119,6 @@ class ValidationRenders(L.Callback):
         name = batch.get("name", "val")
         captions = {kind: f"{name} step {step}" for kind in KINDS}
         captions["error"] = f"{name} step {step} PSNR {frame_psnr:.2f} dB"
-        if self.log_images:
-            for logger in trainer.loggers:
-                log_image = getattr(logger, "log_image", None)
-                if log_image is None:
-                    continue
-                for kind in KINDS:
-                    log_image(key=f"val/render_{kind}", images=[pictures[kind]], step=step, caption=[captions[kind]])
-        if self.save_to_disk and trainer.is_global_zero:
-            out = Path(trainer.default_root_dir) / "val"
-            out.mkdir(parents=True, exist_ok=True)
-            for kind in KINDS:
-                write_png(out / f"step{step:06d}_{kind}.png", pictures[kind])
+        for kind in KINDS:
+            publish_picture(trainer, f"val/render_{kind}", pictures[kind], f"step{step:06d}_{kind}.png",
+                            captions[kind], log=self.log_images, save=self.save_to_disk)

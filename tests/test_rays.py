@@ -65,3 +65,9 @@ def test_ndc_of_axis_ray():
     ndc_o, ndc_d = ndc_rays(o, d, K, 64, 48, near=1.0)
     assert torch.allclose(ndc_o, torch.tensor([[0.0, 0.0, -1.0]]))
     assert torch.allclose(ndc_d, torch.tensor([[0.0, 0.0, 2.0]]))
+
+
+def test_pixel_grid_is_row_major_column_row():
+    from simplenerf.rays import pixel_grid
+
+    assert pixel_grid(2, 3).tolist() == [[0, 0], [1, 0], [2, 0], [0, 1], [1, 1], [2, 1]]

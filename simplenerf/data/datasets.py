@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import torch
 from torch.utils.data import Dataset, IterableDataset, get_worker_info
 
-from simplenerf.rays import make_rays
+from simplenerf.rays import make_rays, pixel_grid
 
 
 @dataclass
@@ -121,9 +121,7 @@ class Frames(Dataset):
     def __getitem__(self, i: int) -> dict:
         index = self.indices[i]
         h, w = self.views.height, self.views.width
-        v, u = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
-        uv = torch.stack([u.flatten(), v.flatten()], dim=-1)
-        item = self.views.rays(torch.full((h * w,), index), uv, self.near)
+        item = self.views.rays(torch.full((h * w,), index), pixel_grid(h, w), self.near)
         item.update(rgb=self.views.images[index].reshape(-1, 3), index=index, name=self.views.names[index])
         item.update(height=h, width=w)
         if self.views.depths is not None:

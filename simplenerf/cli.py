@@ -21,12 +21,12 @@ from lightning.pytorch.cli import LightningCLI
 
 from simplenerf.callbacks import Checkpointing, LearningRates, RaysPerSecond
 from simplenerf.errors import DataError, SimpleNeRFError
-from simplenerf.evaluation import Evaluator
+from simplenerf.evaluation.evaluator import Evaluator
+from simplenerf.evaluation.lpips import LPIPSWeightsNotFound
 from simplenerf.loggers import WandbLogger
-from simplenerf.lpips import LPIPSWeightsNotFound
 from simplenerf.memory import reuse_freed_memory
 from simplenerf.module import SimpleNeRF
-from simplenerf.visuals import ValidationRenders
+from simplenerf.viz.renders import ValidationRenders
 
 
 class SimpleNeRFCLI(LightningCLI):

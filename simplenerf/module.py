@@ -13,13 +13,13 @@ import numpy as np
 import torch
 from torch import nn
 
-from simplenerf.augmentations import Augmentation
-from simplenerf.losses import color_loss, sparse_depth_loss
-from simplenerf.metrics import psnr
-from simplenerf.nerf import NeRF
-from simplenerf.rays import RayBundle, make_rays, pixel_grid
-from simplenerf.reliability import MaskContext, ReliabilityMask, mask_fractions, masked_depth_loss, nearest_views
-from simplenerf.visuals import publish_picture
+from simplenerf.evaluation.metrics import psnr
+from simplenerf.geometry.rays import RayBundle, make_rays, pixel_grid
+from simplenerf.method.augmentations import Augmentation
+from simplenerf.method.losses import color_loss, sparse_depth_loss
+from simplenerf.method.reliability import MaskContext, ReliabilityMask, mask_fractions, masked_depth_loss, nearest_views
+from simplenerf.model.nerf import NeRF
+from simplenerf.viz.renders import publish_picture
 
 
 class SimpleNeRF(L.LightningModule):

@@ -6,9 +6,9 @@ density trunk loses, i.e. a field of gamma(p, 0, l) only.
 
 from __future__ import annotations
 
-from simplenerf.augmentations import Augmentation
-from simplenerf.fields import RadianceField
-from simplenerf.reliability import PatchReprojectionMask
+from simplenerf.method.augmentations import Augmentation
+from simplenerf.method.reliability import PatchReprojectionMask
+from simplenerf.model.fields import RadianceField
 
 
 class LowPassPointsAugmentation(Augmentation):

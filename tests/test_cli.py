@@ -73,7 +73,7 @@ def test_fit_writes_checkpoints_and_resumes(trained):
     assert {"mask_points_step000002.png", "mask_views_step000002.png", "mask_cfc_step000002.png"} <= {
         p.name for p in (trained / "run" / "val").iterdir()
     }
-    # ...and the validation renders of the validation view (simplenerf.visuals.ValidationRenders, a CLI default).
+    # ...and the validation renders of the validation view (simplenerf.viz.renders.ValidationRenders, a CLI default).
     assert {f"step000004_{kind}.png" for kind in ("rgb", "depth", "accumulation", "error")} <= {
         p.name for p in (trained / "run" / "val").iterdir()
     }
@@ -156,7 +156,7 @@ def test_user_augmentation_plugs_in_by_class_path(tmp_path):
         "  augmentations:\n"
         "    - class_path: tests.custom_augmentation.LowPassPointsAugmentation\n"
         "      init_args: {bands: 2, width: 16, num_layers: 2}\n"
-        "  coarse_fine_mask: {class_path: simplenerf.reliability.PatchReprojectionMask}\n"
+        "  coarse_fine_mask: {class_path: simplenerf.method.reliability.PatchReprojectionMask}\n"
         "trainer:\n"
         "  callbacks:\n"
         "    - class_path: simplenerf.callbacks.LossWeightSchedule\n"

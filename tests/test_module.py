@@ -4,8 +4,8 @@ import pytest
 import torch
 
 from simplenerf.data.synthetic import SyntheticDataModule
+from simplenerf.model.nerf import NeRF
 from simplenerf.module import SimpleNeRF
-from simplenerf.nerf import NeRF
 
 
 @pytest.fixture(scope="module")
@@ -60,9 +60,9 @@ def test_without_sparse_rays_only_colour_counts(batch, monkeypatch):
 
 
 def simplenerf_module(supervision: str = "bidirectional", **weights) -> SimpleNeRF:
-    from simplenerf.augmentations import Augmentation
-    from simplenerf.fields import RadianceField
-    from simplenerf.reliability import PatchReprojectionMask
+    from simplenerf.method.augmentations import Augmentation
+    from simplenerf.method.reliability import PatchReprojectionMask
+    from simplenerf.model.fields import RadianceField
 
     torch.manual_seed(0)
     size = {"num_layers": 2, "width": 16, "skip_layer": 1}
@@ -91,7 +91,7 @@ def run_step(model, dm, monkeypatch) -> tuple[torch.Tensor, dict]:
 
 
 def test_masked_losses_cost_nothing_before_the_warm_up(datamodule, monkeypatch):
-    from simplenerf import reliability
+    from simplenerf.method import reliability
 
     model = simplenerf_module()
     for name in ("points", "views", "cfc"):

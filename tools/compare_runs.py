@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sys
 
-from simplenerf.compare import load_summaries, markdown_table
+from simplenerf.evaluation.compare import load_summaries, markdown_table
 
 
 def main() -> None:

@@ -1,4 +1,4 @@
-"""Writes a dense NeRF's depth of every frame of its scene (see simplenerf.reference_depth), e.g.
+"""Writes a dense NeRF's depth of every frame of its scene (see simplenerf.evaluation.reference_depth), e.g.
 
     python tools/export_reference_depth.py --config configs/dense/llff.yaml \
         --ckpt runs/dense/llff/checkpoints/last.ckpt --out data/reference_depth/fern \
@@ -17,7 +17,7 @@ import sys
 import torch
 
 from simplenerf.cli import load_for_tool, run_tool, split_overrides
-from simplenerf.reference_depth import export_reference_depth
+from simplenerf.evaluation.reference_depth import export_reference_depth
 
 
 def main() -> None:

@@ -1,4 +1,4 @@
-"""Depth error of a trained model at held-out SfM points (see simplenerf.sfm_reference), e.g.
+"""Depth error of a trained model at held-out SfM points (see simplenerf.evaluation.heldout_depth), e.g.
 
     python tools/heldout_depth_error.py --config configs/dsnerf.yaml --ckpt runs/dsnerf/checkpoints/last.ckpt \
         -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.factor 8
@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from simplenerf.cli import load_for_tool, run_tool, split_overrides
-from simplenerf.sfm_reference import heldout_depth_error, heldout_observations
+from simplenerf.evaluation.heldout_depth import heldout_depth_error, heldout_observations
 
 
 def main() -> None:

@@ -1,4 +1,4 @@
-"""Visibility masks of a scene's test frames (SPEC 7, see simplenerf.visibility), e.g.
+"""Visibility masks of a scene's test frames (SPEC 7, see simplenerf.evaluation.visibility), e.g.
 
     python tools/make_visibility_masks.py --config configs/llff.yaml \
         -- --data.init_args.scene_dir data/nerf_llff_data/fern --data.init_args.reference_depth_dir DIR
@@ -17,8 +17,8 @@ import sys
 from pathlib import Path
 
 from simplenerf.cli import load_for_tool, run_tool, split_overrides
-from simplenerf.evaluation import export_visibility_masks
-from simplenerf.visibility import MIN_VIEWS
+from simplenerf.evaluation.evaluator import export_visibility_masks
+from simplenerf.evaluation.visibility import MIN_VIEWS
 
 
 def main() -> None:

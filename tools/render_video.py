@@ -18,8 +18,8 @@ from pathlib import Path
 import torch
 
 from simplenerf.cli import load_for_tool, run_tool, split_overrides
-from simplenerf.trajectories import scene_trajectory
-from simplenerf.video import downscale_intrinsics, render_video
+from simplenerf.viz.trajectories import scene_trajectory
+from simplenerf.viz.video import downscale_intrinsics, render_video
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:

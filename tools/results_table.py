@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import sys
 
-from simplenerf.tables import main
+from simplenerf.evaluation.tables import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -11,12 +11,12 @@ from dataclasses import dataclass
 import torch
 from torch.utils.data import Dataset, IterableDataset, get_worker_info
 
-from simplenerf.rays import make_rays, pixel_grid
+from simplenerf.geometry.rays import make_rays, pixel_grid
 
 
 @dataclass
 class Views:
-    """Frames of one scene, as tensors (see `simplenerf.rays` for the camera conventions)."""
+    """Frames of one scene, as tensors (see `simplenerf.geometry.rays` for the camera conventions)."""
 
     images: torch.Tensor  # [V, H, W, 3] in [0, 1]
     intrinsics: torch.Tensor  # [V, 3, 3]

@@ -8,7 +8,7 @@ in front of every train camera, and recentred on the average train pose.
 
 Reference depth (for depth metrics and visibility masks) is camera z-depth in FILE units (the units of the scene's
 own poses, before scaling), one `<frame name>.npy` [H, W] per frame: the exact depth of the synthetic scene
-(`depths_{factor}/`) or a dense NeRF's export (`simplenerf.reference_depth`). File units make it independent of the
+(`depths_{factor}/`) or a dense NeRF's export (`evaluation.reference_depth`). File units make it independent of the
 split, whose train bounds set the scale; loading multiplies by the scale.
 """
 
@@ -24,8 +24,8 @@ import torch
 from torch.utils.data import DataLoader
 
 from simplenerf.data.datasets import Frames, RandomRays, SparseDepthPool, Views
+from simplenerf.data.sparse_depth import load_or_compute_sparse_depth
 from simplenerf.errors import DataError
-from simplenerf.sparse_depth import load_or_compute_sparse_depth
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 

@@ -13,7 +13,7 @@ reprojection and mask tests, so every pixel is defined by a single analytic ray-
   each looking at the scene centre (0, 0, -6) with a small random roll.
 - Pixel (u, v) (u = column, v = row) is the ray through the integer image coordinate (u, v), no +0.5, with
   camera-frame direction [(u - cx) / f, -(v - cy) / f, -1], cx = W / 2, cy = H / 2, exactly as in
-  `simplenerf.rays`. Its colour is the texture at the first hit (point-sampled) and its depth is the camera z-depth
+  `geometry.rays`. Its colour is the texture at the first hit (point-sampled) and its depth is the camera z-depth
   of that same hit, i.e. the ray parameter t, so depth maps are exact for the very rays that made the colours.
   A consequence of this convention: pixel (u, v) at factor k is the ray of full-resolution pixel (k u, k v).
 

@@ -18,7 +18,7 @@ from simplenerf.data.realestate import (
     realestate_split,
 )
 from simplenerf.errors import DataError
-from simplenerf.rays import pixel_rays, project
+from simplenerf.geometry.rays import pixel_rays, project
 from tests.conftest import require_shared
 from tests.test_cli import SMALL, run, tiny_augmentations
 

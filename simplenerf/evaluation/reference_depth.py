@@ -1,0 +1,50 @@
+"""Reference depth from a dense NeRF (SPEC 7: "reference depth = a NeRF trained on all non-test frames").
+
+A NeRF trained with `n_views: null` (configs/dense/) renders the fine depth of every frame of its scene, train and
+test alike (the visibility masks warp train views' depth into test views). Each frame is written as
+`<out_dir>/<frame name>.npy`, float32 [H, W] camera z-depth in FILE units (scene units / scene.scale): the scale
+depends on the split's train bounds, so file units make one export serve every view count. A data module's
+`reference_depth_dir` reads it back, multiplied by its own scale.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from simplenerf.data.datasets import Frames
+from simplenerf.data.llff import LLFFScene
+from simplenerf.geometry.rays import RayBundle
+
+
+@torch.no_grad()
+def export_reference_depth(model_nerf: nn.Module, scene: LLFFScene, near: float, chunk: int, out_dir: str | Path
+                           ) -> list[Path]:
+    """Renders the fine depth of every frame of `scene` with `model_nerf` and writes one .npy per frame.
+
+    Args:
+        model_nerf: a `simplenerf.model.nerf.NeRF` (or anything with its `render_rays_chunked`), on any device.
+        scene: the scene it was trained on (its cameras and scale).
+        near: the NDC near plane of the data module.
+        chunk: rays per forward pass.
+        out_dir: created if missing; files there of the same names are replaced.
+
+    Returns:
+        the written paths, in frame order.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    device = next(model_nerf.parameters()).device
+    frames = Frames(scene.views, near)
+    written = []
+    for item in tqdm(frames, desc="reference depth", unit="frame"):
+        rays = RayBundle.from_batch({k: v.to(device) for k, v in item.items() if isinstance(v, torch.Tensor)})
+        depth = model_nerf.render_rays_chunked(rays, chunk)["depth"].reshape(item["height"], item["width"])
+        path = out_dir / f"{item['name']}.npy"
+        np.save(path, (depth.double().cpu().numpy() / scene.scale).astype(np.float32))
+        written.append(path)
+    return written

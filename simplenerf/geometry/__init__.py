@@ -1,0 +1,1 @@
+"""Camera geometry: rays of pixels, NDC, projection, and the posed train views (`Cameras`)."""

@@ -1,0 +1,56 @@
+"""Augmentations ("simplifiers", paper Sec. 4.1): simpler NeRFs trained beside the main one to supervise its depth.
+
+An augmentation is a field evaluated at the main model's sample points (the coarse ones in the paper), trained with
+the colour and sparse-depth losses, and tied to the main model's depth there by a masked depth loss whose mask comes
+from its own `ReliabilityMask`. The simplifications themselves are configuration of `RadianceField`:
+
+- points augmentation: `RadianceField(density_bands=3, residual_bands_to_color=True)` (l_p^ap = 3);
+- views augmentation: `RadianceField(view_dependent=False)`;
+- ablations: identical augmentation `RadianceField()`, smaller network `RadianceField(num_layers=4, skip_layer=None)`.
+
+A new augmentation plugs in from YAML by `class_path`: any `nn.Module` field with the `RadianceField` call signature,
+or a subclass of `Augmentation` that overrides `render`.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from torch import nn
+
+from simplenerf.method.reliability import ReliabilityMask
+from simplenerf.model.nerf import NeRF, NeRFOutputs
+from simplenerf.model.rendering import RenderOutputs
+
+
+class Augmentation(nn.Module):
+    """A simplified field supervising (and supervised by) the main model's depth where it is more reliable."""
+
+    def __init__(
+        self,
+        name: str,
+        field: nn.Module,
+        mask: ReliabilityMask,
+        depth_weight: float = 0.1,
+        stage: Literal["coarse", "fine"] = "coarse",
+    ) -> None:
+        """
+        Args:
+            name: loss name (`points` -> L_ap, `views` -> L_av); its weight is `loss_weights[name]` of the module.
+            field: the simplified field, called as field(points_enc, dirs_enc) like `RadianceField`.
+            mask: decides per ray which of the two depths supervises the other.
+            depth_weight: lambda_3 / lambda_4, weight of the masked depth loss (a warm-up schedule may override it).
+            stage: evaluated at the main model's coarse samples and tied to the coarse depth (the paper), or at the
+                fine samples and tied to the fine depth (the "w/o coarse-fine consistency" ablation adds those).
+        """
+        super().__init__()
+        self.name, self.field, self.mask, self.depth_weight, self.stage = name, field, mask, depth_weight, stage
+
+    def render(self, nerf: NeRF, main: NeRFOutputs, randomized: bool) -> RenderOutputs:
+        """Renders the augmentation along the rays of `main`, at the main model's samples of its stage."""
+        samples = main.coarse_samples if self.stage == "coarse" else main.fine_samples
+        return nerf.render(self.field, samples, randomized)
+
+    def main_output(self, main: NeRFOutputs) -> RenderOutputs:
+        """The main model's render this augmentation is tied to."""
+        return main.coarse if self.stage == "coarse" else main.fine

@@ -1,0 +1,299 @@
+"""Reliable depth estimates (Sec. 4.2): patch reprojection errors, the ternary mask and the masked depth losses.
+
+Two models render a depth for the same training ray: the "main" one (the main coarse NeRF) and the "other" one (an
+augmented model, or the main fine NeRF for the coarse-fine consistency loss). Each depth is judged by how well it
+explains the nearest other training view, and the better, good-enough one supervises the worse through a
+stop-gradient (paper eqs. 3, 4 and 7).
+
+Naming, used throughout:
+- V train views, R rays, H x W images; k = `patch_size` (odd), h = k // 2 the patch half-width.
+- For ray r: a = view[r] is its (train) view, b = nearest[a] the train view with the closest camera centre.
+- z: camera z-depth along a ray, so the 3D point is X = o + z d with the un-normalised directions of
+  `geometry.rays`. Pixels uv are (column, row) in the `geometry.rays` convention (integer = pixel centre).
+- e: patch reprojection error, the RMSE over the k * k * 3 values of two RGB patches (images in [0, 1]).
+- m: the ternary mask, +1 = train main toward sg(other), -1 = train other toward sg(main), 0 = neither;
+  sg = stop-gradient (detach).
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+
+from simplenerf.geometry.rays import project
+
+Direction = Literal["bidirectional", "one_way"]
+
+
+def nearest_views(c2w: torch.Tensor) -> torch.Tensor:
+    """For each view, the other view whose camera centre is closest (ties: the lowest index).
+
+    Args:
+        c2w: [V, 3, 4] camera-to-world matrices, V >= 2.
+
+    Returns:
+        [V] long indices into the same views, never the view itself.
+    """
+    if c2w.ndim != 3 or c2w.shape[0] < 2:
+        raise ValueError(f"nearest_views needs at least 2 views of c2w [V, 3, 4], got shape {tuple(c2w.shape)}")
+    centres = c2w[:, :3, 3]
+    distance = (centres[:, None] - centres[None]).square().sum(-1)  # [V, V]; exact, unlike cdist's matmul form
+    distance.fill_diagonal_(math.inf)
+    return distance.argmin(dim=1)
+
+
+def _patch_offsets(patch_size: int, device: torch.device) -> torch.Tensor:
+    """[k * k, 2] integer (du, dv) offsets of a k x k patch around its centre, row-major."""
+    half = patch_size // 2
+    steps = torch.arange(-half, half + 1, device=device)
+    dv, du = torch.meshgrid(steps, steps, indexing="ij")
+    return torch.stack([du.flatten(), dv.flatten()], dim=-1)
+
+
+def _check_patch_size(patch_size: int) -> None:
+    if patch_size < 1 or patch_size % 2 == 0:
+        raise ValueError(
+            f"patch_size must be a positive odd integer (the patch is centred on a pixel), got {patch_size}"
+        )
+
+
+def _centre_pixels(uv: torch.Tensor, height: int, width: int, half: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Rounds continuous pixels to patch centres that are always safe to gather, and says which were inside.
+
+    Args:
+        uv: [R, 2] pixel coordinates (column, row), any real dtype; may hold NaN or inf.
+
+    Returns:
+        centre [R, 2] long, clamped so that its whole patch lies in the image; inside [R] bool, True where the
+        rounded pixel is at least `half` pixels inside the image (False for NaN).
+    """
+    rounded = torch.round(uv)
+    low = torch.tensor([[half, half]], dtype=rounded.dtype, device=rounded.device)
+    high = torch.tensor([[width - 1 - half, height - 1 - half]], dtype=rounded.dtype, device=rounded.device)
+    inside = ((rounded >= low) & (rounded <= high)).all(dim=-1)
+    # Clamp before the cast: float -> long of NaN or of a huge value is undefined and could index out of bounds.
+    centre = torch.minimum(torch.maximum(torch.nan_to_num(rounded, nan=float(half)), low), high).long()
+    return centre, inside
+
+
+def _gather_patches(images: torch.Tensor, view: torch.Tensor, centre: torch.Tensor, patch_size: int) -> torch.Tensor:
+    """k x k RGB patches of images [V, H, W, 3] around in-bounds centres [R, 2] of views [R] -> [R, k * k, 3]."""
+    pixels = centre[:, None, :] + _patch_offsets(patch_size, centre.device)  # [R, k*k, 2]
+    return images[view[:, None], pixels[..., 1], pixels[..., 0]]
+
+
+def _source_patches(
+    images: torch.Tensor, view: torch.Tensor, uv: torch.Tensor, patch_size: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Patches around the rays' own pixels: [R, k * k, 3] and whether each fits in its image [R]."""
+    centre, inside = _centre_pixels(uv, images.shape[1], images.shape[2], patch_size // 2)
+    return _gather_patches(images, view, centre, patch_size), inside
+
+
+def _reprojection_error(
+    images: torch.Tensor,
+    intrinsics: torch.Tensor,
+    c2w: torch.Tensor,
+    nearest: torch.Tensor,
+    view: torch.Tensor,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    depth: torch.Tensor,
+    source: torch.Tensor,
+    source_inside: torch.Tensor,
+    patch_size: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """`patch_reprojection_error` given the already gathered source patches [R, k * k, 3] and their validity [R]."""
+    target_view = nearest[view]
+    points = origins + depth.detach()[:, None] * directions
+    uv_target, z_target = project(points, intrinsics[target_view], c2w[target_view])
+    centre, inside = _centre_pixels(uv_target, images.shape[1], images.shape[2], patch_size // 2)
+    target = _gather_patches(images, target_view, centre, patch_size)
+    error = (source - target).square().mean(dim=(1, 2)).sqrt()
+    valid = source_inside & inside & (z_target > 0)
+    return error.masked_fill(~valid, math.inf), valid
+
+
+def patch_reprojection_error(
+    images: torch.Tensor,
+    intrinsics: torch.Tensor,
+    c2w: torch.Tensor,
+    nearest: torch.Tensor,
+    view: torch.Tensor,
+    uv: torch.Tensor,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    depth: torch.Tensor,
+    patch_size: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """How well a depth explains the nearest train view: RMSE between the patch at the ray's pixel and the patch at
+    the pixel its 3D point reprojects to.
+
+    X = o + z d (z detached) is projected into view b = nearest[a] with b's own intrinsics and rounded to the nearest
+    pixel; the k x k patch around uv in image a is compared with the k x k patch around that pixel in image b at the
+    same integer offsets (the whole patch shifts by the centre's disparity). Source pixels are rounded as well, so
+    continuous (e.g. keypoint) pixels are allowed.
+
+    Args:
+        images: [V, H, W, 3] train images in [0, 1].
+        intrinsics: [V, 3, 3] per-view intrinsics.
+        c2w: [V, 3, 4] camera-to-world matrices.
+        nearest: [V] long, `nearest_views(c2w)`.
+        view: [R] long, each ray's view (index into the V train views).
+        uv: [R, 2] each ray's pixel (column, row).
+        origins, directions: [R, 3] the rays (point = o + z d, see `simplenerf.geometry.rays`).
+        depth: [R] camera z-depth of each ray's surface point.
+        patch_size: k, odd.
+
+    Returns:
+        error [R] in the images' dtype, +inf where invalid; valid [R] bool: both patches lie inside their images
+        (centres at least k // 2 px from every border) and X is in front of camera b (camera z > 0).
+    """
+    _check_patch_size(patch_size)
+    source, source_inside = _source_patches(images, view, uv, patch_size)
+    return _reprojection_error(
+        images, intrinsics, c2w, nearest, view, origins, directions, depth, source, source_inside, patch_size
+    )
+
+
+def ternary_mask(error_main: torch.Tensor, error_other: torch.Tensor, threshold: float) -> torch.Tensor:
+    """Which of two depths is reliable (paper eq. 6, SPEC 4.5).
+
+    Every comparison is strict (<), as SPEC 4 states, where the paper's equation has e_other <= e_main and <= e_tau:
+    so a tie gives 0, and so does an error exactly at the threshold. Invalid rays carry e = inf and give 0.
+
+    Args:
+        error_main, error_other: [R] reprojection errors of the main and the other depth.
+        threshold: e_tau; a depth whose error is not below it is never trusted.
+
+    Returns:
+        [R] in the errors' dtype with values +1 (other is reliable and better: train main toward it), -1 (main is
+        reliable and better: train other toward it) and 0 (neither). Floating point so it multiplies losses directly.
+    """
+    one = torch.ones_like(error_main)
+    plus = (error_other < error_main) & (error_other < threshold)
+    minus = (error_main < error_other) & (error_main < threshold)
+    return torch.where(plus, one, torch.where(minus, -one, torch.zeros_like(one)))
+
+
+def mask_fractions(mask: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Fractions of rays at each mask value, for logging (0-dim tensors, no host sync).
+
+    Args:
+        mask: [R] ternary mask (`ternary_mask`), floating point.
+
+    Returns:
+        {"plus": fraction at +1, "minus": fraction at -1, "zero": fraction at 0}.
+    """
+    return {
+        "plus": (mask == 1).to(mask.dtype).mean(),
+        "minus": (mask == -1).to(mask.dtype).mean(),
+        "zero": (mask == 0).to(mask.dtype).mean(),
+    }
+
+
+def masked_depth_loss(
+    z_main: torch.Tensor, z_other: torch.Tensor, mask: torch.Tensor | None, direction: Direction
+) -> torch.Tensor:
+    """The depth consistency losses L_ap, L_av and L_cfc (paper eqs. 3, 4, 7).
+
+    The mean is over ALL rays, masked-out ones counting as zero (as in the authors' release), so the loss scale
+    falls when fewer depths are reliable.
+
+    Args:
+        z_main: [R] depth of the main model (e.g. main coarse).
+        z_other: [R] depth of the other model (augmented, or main fine).
+        mask: [R] ternary mask, or None to trust every ray: plain mean((z_main - z_other)^2), gradient to both.
+        direction: "bidirectional" (the paper): 1{m=+1} (z_main - sg(z_other))^2 + 1{m=-1} (sg(z_main) - z_other)^2;
+            "one_way" (what the release effectively trains, SPEC 3): only the m = +1 term.
+
+    Returns:
+        [] scalar loss.
+    """
+    if direction not in ("bidirectional", "one_way"):
+        raise ValueError(f"direction must be 'bidirectional' or 'one_way', got {direction!r}")
+    if mask is None:
+        return (z_main - z_other).square().mean()
+    zero = torch.zeros_like(z_main)
+    # torch.where rather than a product, so that a non-finite depth of a masked-out ray cannot turn the loss into NaN.
+    loss = torch.where(mask == 1, (z_main - z_other.detach()).square(), zero)
+    if direction == "bidirectional":
+        loss = loss + torch.where(mask == -1, (z_main.detach() - z_other).square(), zero)
+    return loss.mean()
+
+
+@dataclass
+class MaskContext:
+    """What a reliability mask may look at besides the two depths: the train views and the batch's rays."""
+
+    images: torch.Tensor  # [V, H, W, 3] train images in [0, 1]
+    intrinsics: torch.Tensor  # [V, 3, 3]
+    c2w: torch.Tensor  # [V, 3, 4]
+    nearest: torch.Tensor  # [V] long, nearest_views(c2w), computed once per scene
+    view: torch.Tensor  # [R] long, index into the train views
+    uv: torch.Tensor  # [R, 2] pixel (column, row)
+    origins: torch.Tensor  # [R, 3]
+    directions: torch.Tensor  # [R, 3], un-normalised (point = o + z d)
+
+    @classmethod
+    def from_batch(
+        cls,
+        images: torch.Tensor,
+        intrinsics: torch.Tensor,
+        c2w: torch.Tensor,
+        nearest: torch.Tensor,
+        batch: dict[str, torch.Tensor],
+        prefix: str = "",
+    ) -> MaskContext:
+        """The context of a training batch (keys `{prefix}view`, `{prefix}uv`, `{prefix}origins`, ...)."""
+        return cls(
+            images, intrinsics, c2w, nearest,
+            *(batch[prefix + key] for key in ("view", "uv", "origins", "directions")),
+        )  # fmt: skip
+
+
+class ReliabilityMask(abc.ABC):
+    """Decides, per ray, which of two depth estimates supervises the other (Sec. 4.2)."""
+
+    @abc.abstractmethod
+    def __call__(self, context: MaskContext, z_main: torch.Tensor, z_other: torch.Tensor) -> torch.Tensor | None:
+        """The ternary mask [R] (see `ternary_mask`) for depths z_main, z_other [R], or None for "no mask": every
+        ray is trusted and `masked_depth_loss` applies no stop-gradient."""
+
+
+class PatchReprojectionMask(ReliabilityMask):
+    """The paper's mask: the depth whose k x k patch reprojects better into the nearest train view, if good enough."""
+
+    def __init__(self, patch_size: int = 5, error_threshold: float = 0.1) -> None:
+        """
+        Args:
+            patch_size: side k of the square patch compared between views (odd).
+            error_threshold: e_tau, the patch RMSE (images in [0, 1]) below which a depth can be trusted.
+        """
+        _check_patch_size(patch_size)
+        if not error_threshold > 0:
+            raise ValueError(f"error_threshold must be positive, got {error_threshold}")
+        self.patch_size, self.error_threshold = patch_size, error_threshold
+
+    def errors(self, context: MaskContext, z_main: torch.Tensor, z_other: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Reprojection errors of both depths, [R] each (inf where invalid), sharing one gather of the source patch."""
+        c = context
+        source, inside = _source_patches(c.images, c.view, c.uv, self.patch_size)
+        common = (c.images, c.intrinsics, c.c2w, c.nearest, c.view, c.origins, c.directions)
+        error_main, _ = _reprojection_error(*common, z_main, source, inside, self.patch_size)
+        error_other, _ = _reprojection_error(*common, z_other, source, inside, self.patch_size)
+        return error_main, error_other
+
+    def __call__(self, context: MaskContext, z_main: torch.Tensor, z_other: torch.Tensor) -> torch.Tensor:
+        return ternary_mask(*self.errors(context, z_main, z_other), self.error_threshold)
+
+
+class TrustAll(ReliabilityMask):
+    """No mask: every depth is trusted and both models pull on each other (the paper's "w/o reliable depth")."""
+
+    def __call__(self, context: MaskContext, z_main: torch.Tensor, z_other: torch.Tensor) -> None:
+        return None

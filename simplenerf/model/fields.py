@@ -1,0 +1,111 @@
+"""Radiance fields: the NeRF MLP F1 (density + feature) and F2 (colour), paper Sec. 3 and SPEC 1.
+
+One class covers the main field and its simplified variants, as configuration of the same parts:
+- `density_bands` l: the trunk F1 sees gamma(p, 0, l) instead of gamma(p, 0, L) (points augmentation, l = 3);
+- `residual_bands_to_color`: F2 also gets the bands F1 lost, gamma(p, l, L) (points augmentation);
+- `view_dependent=False`: no direction input; the trunk's last layer outputs density and RGB (views augmentation);
+- `num_layers`, `width`: the network size (smaller-network ablation).
+
+Fields take the encodings of their inputs, computed once per batch by the caller (`nerf.Samples`), so the main
+field and every augmentation evaluated at the same points share that work.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from simplenerf.model.encodings import band_slice, encoded_dim
+
+
+@dataclass
+class FieldOutputs:
+    """Raw field outputs at sample points."""
+
+    raw_density: torch.Tensor  # [R, S] before noise and ReLU
+    rgb: torch.Tensor  # [R, S, 3] in [0, 1]
+
+
+class RadianceField(nn.Module):
+    """An MLP field sigma, c = F(gamma(p), gamma(v))."""
+
+    def __init__(
+        self,
+        point_bands: int = 10,
+        view_bands: int = 4,
+        density_bands: int | None = None,
+        residual_bands_to_color: bool = False,
+        view_dependent: bool = True,
+        num_layers: int = 8,
+        width: int = 256,
+        skip_layer: int | None = 5,
+        color_width: int = 128,
+    ) -> None:
+        """
+        Args:
+            point_bands: L_p, bands of the shared point encoding gamma(p, 0, L_p) the field receives.
+            view_bands: L_v, bands of the shared direction encoding.
+            density_bands: bands the density trunk uses, gamma(p, 0, l); None = all L_p (main field).
+            residual_bands_to_color: feed the bands the trunk does not use, gamma(p, l, L_p), to the colour branch.
+            view_dependent: colour depends on the view direction; if False the trunk outputs density and RGB.
+            num_layers: linear layers of the trunk.
+            width: width of the trunk.
+            skip_layer: index of the trunk layer that receives the encoded point again (5 = before the 6th layer).
+            color_width: hidden width of the colour branch.
+        """
+        super().__init__()
+        density_bands = point_bands if density_bands is None else density_bands
+        if not 0 <= density_bands <= point_bands:
+            raise ValueError(f"density_bands must be in [0, {point_bands}], got {density_bands}")
+        if skip_layer is not None and not 0 < skip_layer < num_layers:
+            raise ValueError(f"skip_layer must be in (0, {num_layers}), got {skip_layer}")
+        self.view_dependent = view_dependent
+        self.skip_layer = skip_layer
+        self.trunk_slice = band_slice(3, 0, density_bands, include_input=True)
+        self.residual_slice = band_slice(3, density_bands, point_bands, include_input=False)
+        self.residual_bands_to_color = residual_bands_to_color
+        in_dim = encoded_dim(3, density_bands)
+
+        layers = []
+        for i in range(num_layers):
+            fan_in = in_dim if i == 0 else width
+            if i == skip_layer:
+                fan_in += in_dim
+            layers.append(nn.Linear(fan_in, width))
+        self.trunk = nn.ModuleList(layers)
+
+        if view_dependent:
+            residual_dim = 3 * 2 * (point_bands - density_bands) if residual_bands_to_color else 0
+            self.density_head = nn.Linear(width, 1)
+            self.feature = nn.Linear(width, width)
+            self.color = nn.Sequential(
+                nn.Linear(width + residual_dim + encoded_dim(3, view_bands), color_width),
+                nn.ReLU(),
+                nn.Linear(color_width, 3),
+            )
+        else:
+            if residual_bands_to_color:
+                raise ValueError("residual_bands_to_color needs a colour branch (view_dependent=True)")
+            self.output = nn.Linear(width, 4)
+
+    def forward(self, points_enc: torch.Tensor, dirs_enc: torch.Tensor) -> FieldOutputs:
+        """
+        Args:
+            points_enc: [R, S, 3(2 L_p + 1)] gamma(p, 0, L_p) of the sample points.
+            dirs_enc: [R, 3(2 L_v + 1)] gamma(v, 0, L_v) of the normalised ray directions.
+        """
+        x = points_enc[..., self.trunk_slice]
+        h = x
+        for i, layer in enumerate(self.trunk):
+            h = torch.relu(layer(torch.cat([h, x], dim=-1) if i == self.skip_layer else h))
+        if not self.view_dependent:
+            out = self.output(h)
+            return FieldOutputs(raw_density=out[..., 0], rgb=torch.sigmoid(out[..., 1:]))
+        color_in = [self.feature(h)]
+        if self.residual_bands_to_color:
+            color_in.append(points_enc[..., self.residual_slice])
+        color_in.append(dirs_enc[:, None, :].expand(*h.shape[:-1], dirs_enc.shape[-1]))
+        rgb = torch.sigmoid(self.color(torch.cat(color_in, dim=-1)))
+        return FieldOutputs(raw_density=self.density_head(h)[..., 0], rgb=rgb)

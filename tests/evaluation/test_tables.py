@@ -1,0 +1,236 @@
+import csv
+import json
+import re
+import subprocess
+import sys
+
+import pytest
+
+from simplenerf.errors import DataError
+from simplenerf.evaluation import paper_scores
+from simplenerf.evaluation.tables import expand_runs, load_records, main, mean_rows
+from tests.conftest import REPO, require_shared
+
+# (model, scene, views) -> masked LPIPS, SSIM, PSNR, full-frame LPIPS, SSIM, PSNR, masked depth MAE, SROCC.
+# Means over the two scenes are exact in binary, so the expected cells below are exact.
+RUNS = {
+    ("SimpleNeRF", "fern", 2): (0.25, 0.5, 20.0, 0.375, 0.375, 18.0, 0.125, 0.75),
+    ("SimpleNeRF", "horns", 2): (0.5, 0.75, 21.0, 0.625, 0.5, 19.0, 0.25, 0.875),
+    ("SimpleNeRF", "fern", 3): (0.125, 0.625, 22.0, 0.25, 0.5, 20.0, 0.0625, 0.875),
+    ("SimpleNeRF", "horns", 3): (0.25, 0.875, 23.0, 0.5, 0.625, 21.0, 0.125, 0.9375),
+    ("DS-NeRF", "fern", 2): (0.5, 0.25, 17.0, 0.75, 0.125, 15.0, 0.5, 0.5),
+    ("DS-NeRF", "horns", 2): (0.75, 0.5, 18.5, 0.875, 0.25, 16.5, 0.75, 0.625),
+    ("DS-NeRF", "fern", 3): (0.375, 0.5, 19.0, 0.5, 0.25, 17.0, 0.25, 0.625),
+    ("DS-NeRF", "horns", 3): (0.625, 0.625, 20.0, 0.75, 0.375, 18.0, 0.5, 0.75),
+}
+FIELDS = ("masked_lpips", "masked_ssim", "masked_psnr", "lpips", "ssim", "psnr", "masked_depth_mae",
+          "masked_depth_srocc")
+HEADER_2_3_4 = [
+    "|  | 2 views |  |  | 3 views |  |  | 4 views |  |  |",
+    "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    "| Model | LPIPS ↓ | SSIM ↑ | PSNR ↑ | LPIPS ↓ | SSIM ↑ | PSNR ↑ | LPIPS ↓ | SSIM ↑ | PSNR ↑ |",
+]
+
+
+def write_run(folder, scene, n_views, values, **extra):
+    """A run folder with test/summary.json in the shared format (no full-frame depth: no reference depth)."""
+    summary = {"scene": scene, "n_views": n_views, "frames": 3, "depth_mae": None, "depth_srocc": None,
+               **dict(zip(FIELDS, values, strict=True)), "checkpoint": None, "git_commit": None, "config": None,
+               **extra}
+    (folder / "test").mkdir(parents=True)
+    (folder / "test" / "summary.json").write_text(json.dumps(summary))
+    return folder
+
+
+@pytest.fixture
+def runs(tmp_path):
+    """runs/<model>/<scene>_<n>v for the 2 models x 2 scenes x 2 view counts of RUNS."""
+    for (model, scene, n), values in RUNS.items():
+        write_run(tmp_path / "runs" / model / f"{scene}_{n}v", scene, n, values)
+    return tmp_path / "runs"
+
+
+def args_for(runs):
+    return [f"SimpleNeRF={runs}/SimpleNeRF/*", f"DS-NeRF={runs}/DS-NeRF/*"]
+
+
+def table_lines(out):
+    return [line for line in out.splitlines() if line.startswith("|")]
+
+
+def test_table1_layout_means_and_missing_views(runs, capsys):
+    assert main([*args_for(runs), "--views", "2", "3", "4"]) == 0
+    out, err = capsys.readouterr()
+    assert out.splitlines()[0].startswith("Masked scores (pixels seen by at least two train views)")
+    assert table_lines(out) == [
+        *HEADER_2_3_4,
+        "| SimpleNeRF | 0.3750 | 0.6250 | 20.50 | 0.1875 | 0.7500 | 22.50 | - | - | - |",
+        "| DS-NeRF | 0.6250 | 0.3750 | 17.75 | 0.5000 | 0.5625 | 19.50 | - | - | - |",
+    ]
+    assert err == ""  # both models cover the same scenes
+
+
+def test_default_views_are_those_with_runs(runs, capsys):
+    main(args_for(runs))
+    lines = table_lines(capsys.readouterr().out)
+    assert lines[0] == "|  | 2 views |  |  | 3 views |  |  |"
+    assert lines[2] == "| Model | LPIPS ↓ | SSIM ↑ | PSNR ↑ | LPIPS ↓ | SSIM ↑ | PSNR ↑ |"
+
+
+def test_full_frame_and_both_scores(runs, capsys):
+    main([*args_for(runs), "--scores", "full"])
+    assert table_lines(capsys.readouterr().out)[3:] == [
+        "| SimpleNeRF | 0.5000 | 0.4375 | 18.50 | 0.3750 | 0.5625 | 20.50 |",
+        "| DS-NeRF | 0.8125 | 0.1875 | 15.75 | 0.6250 | 0.3125 | 17.50 |",
+    ]
+    main([*args_for(runs), "--scores", "both"])
+    out = capsys.readouterr().out
+    assert "full-frame scores in parentheses" in out.splitlines()[0]
+    assert table_lines(out)[3] == ("| SimpleNeRF | 0.3750 (0.5000) | 0.6250 (0.4375) | 20.50 (18.50) | "
+                                   "0.1875 (0.3750) | 0.7500 (0.5625) | 22.50 (20.50) |")
+
+
+def test_depth_columns(runs, capsys):
+    main([*args_for(runs), "--depth", "--views", "2"])
+    lines = table_lines(capsys.readouterr().out)
+    assert lines[0] == "|  | 2 views |  |  |  |  |"
+    assert lines[2] == "| Model | LPIPS ↓ | SSIM ↑ | PSNR ↑ | MAE ↓ | SROCC ↑ |"
+    assert lines[3] == "| SimpleNeRF | 0.3750 | 0.6250 | 20.50 | 0.1875 | 0.8125 |"
+    main([*args_for(runs), "--depth", "--views", "2", "--scores", "full"])  # no reference depth: no full depth
+    assert table_lines(capsys.readouterr().out)[3] == "| SimpleNeRF | 0.5000 | 0.4375 | 18.50 | - | - |"
+
+
+def test_csv_long_format(runs, tmp_path, capsys):
+    main([*args_for(runs), "--scores", "both", "--csv", str(tmp_path / "out" / "table.csv")])
+    with open(tmp_path / "out" / "table.csv", newline="") as f:
+        lines = list(csv.reader(f))
+    assert lines[0] == ["table", "model", "source", "n_views", "metric", "value", "scenes"]
+    assert lines[1] == ["mean", "SimpleNeRF", "measured", "2", "masked_lpips", "0.375", "fern;horns"]
+    assert lines[2] == ["mean", "SimpleNeRF", "measured", "2", "lpips", "0.5", "fern;horns"]
+    assert ["mean", "DS-NeRF", "measured", "3", "psnr", "17.5", "fern;horns"] in lines
+    assert len(lines) == 1 + 2 * 2 * 6  # models x views x (3 metrics, masked and full)
+
+
+def test_unequal_scene_sets_warn_and_name_the_missing_runs(runs, capsys):
+    (runs / "DS-NeRF" / "horns_3v" / "test" / "summary.json").unlink()
+    (runs / "DS-NeRF" / "horns_3v" / "test").rmdir()
+    (runs / "DS-NeRF" / "horns_3v").rmdir()
+    main(args_for(runs))
+    out, err = capsys.readouterr()
+    assert err.splitlines() == [
+        "warning: 3 views: models are averaged over different scenes; missing runs: (DS-NeRF, horns, 3 views)"]
+    assert table_lines(out)[4] == "| DS-NeRF | 0.6250 | 0.3750 | 17.75 | 0.3750 | 0.5000 | 19.00 |"
+
+
+def test_scene_without_masks_leaves_the_masked_mean_out(tmp_path, capsys):
+    write_run(tmp_path / "a", "fern", 2, RUNS[("SimpleNeRF", "fern", 2)])
+    no_masks = dict.fromkeys(("masked_lpips", "masked_ssim", "masked_psnr"))
+    write_run(tmp_path / "b", "horns", 2, RUNS[("SimpleNeRF", "horns", 2)], **no_masks)
+    main([f"SimpleNeRF={tmp_path}/a", f"SimpleNeRF={tmp_path}/b"])
+    out, err = capsys.readouterr()
+    assert table_lines(out)[3] == "| SimpleNeRF | - | - | - |"
+    assert err == (f"warning: SimpleNeRF, 2 views: horns has no masked_lpips, masked_ssim, masked_psnr "
+                   f"({tmp_path}/b/test/summary.json), so those means are left out\n")
+
+
+def test_per_scene_tables(runs, capsys):
+    main([*args_for(runs), "--per-scene", "--scores", "both"])
+    out = capsys.readouterr().out
+    assert [line for line in out.splitlines() if line.startswith("###")] == ["### fern", "### horns"]
+    fern = out.split("### fern")[1].split("### horns")[0]
+    assert table_lines(fern) == [
+        "|  | 2 views |  |  | 3 views |  |  |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+        "| Model | LPIPS ↓ | SSIM ↑ | PSNR ↑ | LPIPS ↓ | SSIM ↑ | PSNR ↑ |",
+        "| SimpleNeRF | 0.2500 (0.3750) | 0.5000 (0.3750) | 20.00 (18.00) | 0.1250 (0.2500) | 0.6250 (0.5000) | "
+        "22.00 (20.00) |",
+        "| DS-NeRF | 0.5000 (0.7500) | 0.2500 (0.1250) | 17.00 (15.00) | 0.3750 (0.5000) | 0.5000 (0.2500) | "
+        "19.00 (17.00) |",
+    ]
+
+
+def test_paper_rows_beside_the_measured_ones(runs, capsys):
+    main([*args_for(runs), "--paper", "llff"])
+    out, err = capsys.readouterr()
+    lines = table_lines(out)
+    assert lines[:3] == HEADER_2_3_4  # the paper has all three view counts
+    assert [line.split(" | ")[0] for line in lines[3:]] == [
+        "| RegNeRF (paper)", "| FreeNeRF (paper)", "| DS-NeRF (paper)", "| DDP-NeRF (paper)", "| ViP-NeRF (paper)",
+        "| SimpleNeRF (paper)", "| SimpleNeRF", "| DS-NeRF"]
+    assert lines[8] == ("| SimpleNeRF (paper) | 0.2688 | 0.6501 | 19.57 | 0.2559 | 0.6940 | 21.37 | 0.2633 | 0.7016 "
+                        "| 21.99 |")
+    assert lines[9] == "| SimpleNeRF | 0.3750 | 0.6250 | 20.50 | 0.1875 | 0.7500 | 22.50 | - | - | - |"
+    assert err.splitlines()[0] == ("note: 2 views: the (paper) rows are means over 8 scenes (fern, flower, fortress, "
+                                   "horns, leaves, orchids, room, trex), the measured rows over fern, horns")
+    # Full-frame: only the SimpleNeRF numbers SPEC section 8 quotes; rows without any shown value are left out.
+    main(["--paper", "llff", "--scores", "full", "--depth"])
+    lines = table_lines(capsys.readouterr().out)
+    assert lines[3:] == ["| SimpleNeRF (paper) | 0.390 | 0.553 | 17.57 | 0.278 | 0.753 |"]
+
+
+def tex_rows(tex, label, block=0):
+    """model -> numbers as printed, of the `block`-th group of rows (between two \\hline) of the tabular labelled
+    `label`."""
+    body = tex[:tex.index(f"\\label{{{label}}}")].rsplit("\\begin{tabular}", 1)[1]
+    rows = {}
+    for line in body.split("\\hline")[2 + block].strip().splitlines():
+        cells = [re.sub(r"\\textbf\{(.*)\}", r"\1", c).strip() for c in line.strip().rstrip("\\ ").split("&")]
+        rows[cells[0]] = tuple(cells[1:])
+    return rows
+
+
+def test_paper_scores_are_the_tex_numbers():
+    tex = require_shared("paper/SimpleNeRF.tex").read_text()
+    # Same models in the same order, same numbers.
+    assert list(tex_rows(tex, "tab:quantitative-llff").items()) == list(paper_scores.LLFF_MAIN.items())
+    assert list(tex_rows(tex, "tab:quantitative-realestate").items()) == list(paper_scores.REALESTATE_MAIN.items())
+    depth = {m: (*llff, *re10k) for m, (llff, re10k) in paper_scores.DEPTH.items()}
+    assert tex_rows(tex, "tab:quantitative-depth") == depth
+    ablations = {m: (*re10k, *llff) for m, (re10k, llff) in paper_scores.ABLATIONS.items()}
+    assert tex_rows(tex, "tab:quantitative-ablations") | tex_rows(tex, "tab:quantitative-ablations", 1) == ablations
+
+
+def test_paper_table_lookups():
+    llff = paper_scores.TABLES["llff"].rows
+    assert llff["DDP-NeRF"][(3, "masked_psnr")] == "18.73"
+    assert llff["ViP-NeRF"][(2, "masked_depth_srocc")] == "0.7344"
+    assert paper_scores.TABLES["realestate"].rows["SimpleNeRF"][(2, "masked_depth_mae")] == "0.3269"
+    assert paper_scores.TABLES["llff-ablations"].rows["w/o reliable depth"] == {
+        (2, "masked_lpips"): "0.3020", (2, "masked_depth_mae"): "0.22"}
+
+
+def test_errors_say_what_to_do(tmp_path, capsys):
+    with pytest.raises(DataError, match=r"test/summary.json not found: test the run first with `python -m simplenerf "
+                                        r"test"):
+        load_records([("A", tmp_path)])
+    write_run(tmp_path / "old", None, 2, RUNS[("SimpleNeRF", "fern", 2)])  # a summary without its scene
+    with pytest.raises(DataError, match=r"old/test/summary.json: expected \"scene\".*found scene=None, n_views=2"):
+        load_records([("A", tmp_path / "old")])
+    with pytest.raises(DataError, match="expected NAME=RUN_DIR"):
+        expand_runs(["runs/fern"])
+    with pytest.raises(DataError, match="no run folder matches"):
+        expand_runs([f"A={tmp_path}/nothing_*"])
+    write_run(tmp_path / "x", "fern", 2, RUNS[("SimpleNeRF", "fern", 2)])
+    write_run(tmp_path / "y", "fern", 2, RUNS[("SimpleNeRF", "fern", 2)])
+    with pytest.raises(DataError, match="are both A on fern with 2 views"):
+        load_records(expand_runs([f"A={tmp_path}/x", f"A={tmp_path}/y"]))
+    assert main([f"A={tmp_path}/missing"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("results_table: error: ") and err.count("\n") == 1
+
+
+def test_mean_rows_keep_the_given_model_order(runs):
+    records = load_records(expand_runs([f"B={runs}/DS-NeRF/fern_2v", f"A={runs}/SimpleNeRF/*",
+                                        f"B={runs}/DS-NeRF/horns_2v"]))
+    rows = mean_rows(records)
+    assert [row.model for row in rows] == ["B", "A"]
+    assert rows[0].scenes == {2: ("fern", "horns")}
+    assert rows[0].values[(2, "masked_psnr")] == 17.75
+
+
+def test_the_tool_runs(runs):
+    tool = [sys.executable, str(REPO / "tools" / "results_table.py")]
+    done = subprocess.run([*tool, f"SimpleNeRF={runs}/SimpleNeRF/*"], capture_output=True, text=True, check=True)
+    assert "| SimpleNeRF | 0.3750 | 0.6250 | 20.50 | 0.1875 | 0.7500 | 22.50 |" in done.stdout
+    failed = subprocess.run([*tool, f"A={runs}/none"], capture_output=True, text=True)
+    assert failed.returncode == 2 and failed.stderr.startswith("results_table: error: ")

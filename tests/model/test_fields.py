@@ -1,0 +1,57 @@
+import pytest
+import torch
+
+from simplenerf.model.encodings import positional_encoding
+from simplenerf.model.fields import RadianceField
+
+
+def encodings(rays: int = 4, samples: int = 5):
+    p, v = torch.randn(rays, samples, 3), torch.nn.functional.normalize(torch.randn(rays, 3), dim=-1)
+    return p, positional_encoding(p, 10), positional_encoding(v, 4)
+
+
+def test_main_field_layout_of_the_release():
+    field = RadianceField()
+    assert [layer.in_features for layer in field.trunk] == [63, 256, 256, 256, 256, 256 + 63, 256, 256]
+    assert field.color[0].in_features == 283
+    _, p_enc, v_enc = encodings()
+    out = field(p_enc, v_enc)
+    assert out.raw_density.shape == (4, 5) and out.rgb.shape == (4, 5, 3)
+    assert bool(((out.rgb > 0) & (out.rgb < 1)).all())
+
+
+def test_points_augmentation_sees_only_low_bands_in_its_trunk():
+    field = RadianceField(density_bands=3, residual_bands_to_color=True)
+    assert field.trunk[0].in_features == 21 and field.trunk[5].in_features == 256 + 21
+    assert field.color[0].in_features == 325
+    p, p_enc, v_enc = encodings()
+    # Changing only the high bands leaves density unchanged but changes colour.
+    perturbed = p_enc.clone()
+    perturbed[..., 21:] += 1.0
+    a, b = field(p_enc, v_enc), field(perturbed, v_enc)
+    assert torch.equal(a.raw_density, b.raw_density)
+    assert not torch.allclose(a.rgb, b.rgb)
+
+
+def test_views_augmentation_ignores_directions():
+    field = RadianceField(view_dependent=False)
+    assert field.output.out_features == 4
+    _, p_enc, v_enc = encodings()
+    a, b = field(p_enc, v_enc), field(p_enc, -v_enc)
+    assert torch.equal(a.rgb, b.rgb) and torch.equal(a.raw_density, b.raw_density)
+
+
+def test_main_field_colour_depends_on_direction():
+    _, p_enc, v_enc = encodings()
+    field = RadianceField()
+    assert not torch.allclose(field(p_enc, v_enc).rgb, field(p_enc, -v_enc).rgb)
+
+
+def test_invalid_configurations_are_rejected():
+    with pytest.raises(ValueError):
+        RadianceField(density_bands=11)
+    with pytest.raises(ValueError):
+        RadianceField(num_layers=4, skip_layer=5)
+    with pytest.raises(ValueError):
+        RadianceField(view_dependent=False, density_bands=3, residual_bands_to_color=True)
+

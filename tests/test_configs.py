@@ -56,8 +56,11 @@ def test_dsnerf_is_simplenerf_without_its_regularisers():
 def test_paper_config_keeps_paper_settings():
     cfg = parse(Path(__file__).resolve().parents[1] / "configs" / "llff.yaml")
     nerf = cfg.model.nerf.init_args
-    assert (nerf.num_coarse, nerf.num_fine, nerf.point_bands, nerf.view_bands) == (64, 128, 10, 4)
-    assert (nerf.num_layers, nerf.width, nerf.skip_layer) == (8, 256, 5)
+    assert (nerf.num_coarse, nerf.num_fine) == (64, 128)
+    for field in (nerf.coarse, nerf.fine):
+        assert field.class_path == "simplenerf.model.fields.RadianceField"
+        f = field.init_args
+        assert (f.point_bands, f.view_bands, f.num_layers, f.width, f.skip_layer) == (10, 4, 8, 256, 5)
     assert cfg.model.lr == 5e-4 and cfg.trainer.max_steps == 100000
     assert cfg.data.init_args.factor == 4 and cfg.data.init_args.rays_per_batch == 2048
 

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from simplenerf.data.synthetic import SyntheticDataModule
-from simplenerf.model.nerf import NeRF
+from simplenerf.model.nerf import NeRF, mlp_nerf
 from simplenerf.module import SimpleNeRF
 
 
@@ -25,7 +25,7 @@ def batch(datamodule):
 
 def module(**weights) -> SimpleNeRF:
     torch.manual_seed(0)
-    return SimpleNeRF(NeRF(num_coarse=8, num_fine=8, num_layers=2, width=16, skip_layer=1), **weights)
+    return SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, num_layers=2, width=16, skip_layer=1), **weights)
 
 
 def test_loss_is_the_weighted_sum_of_its_terms(batch, monkeypatch):
@@ -71,7 +71,7 @@ def simplenerf_module(supervision: str = "bidirectional", **weights) -> SimpleNe
                      PatchReprojectionMask(error_threshold=1.0)),
         Augmentation("views", RadianceField(view_dependent=False, **size), PatchReprojectionMask(error_threshold=1.0)),
     ]
-    return SimpleNeRF(NeRF(num_coarse=8, num_fine=8, **size), augmentations=augs,
+    return SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, **size), augmentations=augs,
                       coarse_fine_mask=PatchReprojectionMask(error_threshold=1.0), supervision=supervision, **weights)
 
 
@@ -125,11 +125,13 @@ def test_augmentations_share_the_main_coarse_samples(datamodule, monkeypatch):
     seen = []
     for aug in model.augmentations:
         original = aug.field.forward
-        monkeypatch.setattr(aug.field, "forward", lambda p, d, f=original: seen.append(p) or f(p, d))
+        monkeypatch.setattr(aug.field, "forward", lambda s, f=original: seen.append((s, s.encoded_positions(10))) or f(s))
     original_coarse = model.nerf.coarse.forward
-    monkeypatch.setattr(model.nerf.coarse, "forward", lambda p, d: seen.append(p) or original_coarse(p, d))
+    monkeypatch.setattr(model.nerf.coarse, "forward",
+                        lambda s: seen.append((s, s.encoded_positions(10))) or original_coarse(s))
     run_step(model, datamodule, monkeypatch)
-    assert len(seen) == 3 and seen[1] is seen[0] and seen[2] is seen[0]  # one encoding, computed once
+    assert len(seen) == 3 and seen[1][0] is seen[0][0] and seen[2][0] is seen[0][0]  # the same samples
+    assert seen[1][1].data_ptr() == seen[0][1].data_ptr() == seen[2][1].data_ptr()  # one encoding, computed once
 
 
 def test_loss_weight_schedule_is_data():

@@ -8,8 +8,8 @@ from its own `ReliabilityMask`. The simplifications themselves are configuration
 - views augmentation: `RadianceField(view_dependent=False)`;
 - ablations: identical augmentation `RadianceField()`, smaller network `RadianceField(num_layers=4, skip_layer=None)`.
 
-A new augmentation plugs in from YAML by `class_path`: any `nn.Module` field with the `RadianceField` call signature,
-or a subclass of `Augmentation` that overrides `render`.
+A new augmentation plugs in from YAML by `class_path`: any `Field` (an MLP, a grid, a user's own), or a subclass of
+`Augmentation` that overrides `render`.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from typing import Literal
 from torch import nn
 
 from simplenerf.method.reliability import ReliabilityMask
+from simplenerf.model.fields import Field
 from simplenerf.model.nerf import NeRF, NeRFOutputs
 from simplenerf.model.rendering import RenderOutputs
 
@@ -29,7 +30,7 @@ class Augmentation(nn.Module):
     def __init__(
         self,
         name: str,
-        field: nn.Module,
+        field: Field,
         mask: ReliabilityMask,
         depth_weight: float = 0.1,
         stage: Literal["coarse", "fine"] = "coarse",
@@ -37,7 +38,7 @@ class Augmentation(nn.Module):
         """
         Args:
             name: loss name (`points` -> L_ap, `views` -> L_av); its weight is `loss_weights[name]` of the module.
-            field: the simplified field, called as field(points_enc, dirs_enc) like `RadianceField`.
+            field: the simplified field (any `Field`), evaluated at the main model's samples.
             mask: decides per ray which of the two depths supervises the other.
             depth_weight: lambda_3 / lambda_4, weight of the masked depth loss (a warm-up schedule may override it).
             stage: evaluated at the main model's coarse samples and tied to the coarse depth (the paper), or at the

@@ -1,13 +1,19 @@
-"""Radiance fields: the NeRF MLP F1 (density + feature) and F2 (colour), paper Sec. 3 and SPEC 1.
+"""Radiance fields: the field contract and the NeRF MLP F1 (density + feature) and F2 (colour), paper Sec. 3, SPEC 1.
 
-One class covers the main field and its simplified variants, as configuration of the same parts:
+The contract: a `Field` is an `nn.Module` called with the `Samples` of a batch of rays and returning `FieldOutputs`
+(raw density and colour per sample). It reads what it needs from the samples (raw NDC positions, directions, or their
+cached positional encodings). The NeRF's coarse and fine fields and every augmentation's field are `Field`s, chosen
+by `class_path` in YAML, so an MLP, a grid or a user's own field plug in the same way.
+
+`RadianceField`, the paper's MLP, covers the main field and its simplified variants as configuration of the same
+parts:
 - `density_bands` l: the trunk F1 sees gamma(p, 0, l) instead of gamma(p, 0, L) (points augmentation, l = 3);
 - `residual_bands_to_color`: F2 also gets the bands F1 lost, gamma(p, l, L) (points augmentation);
 - `view_dependent=False`: no direction input; the trunk's last layer outputs density and RGB (views augmentation);
 - `num_layers`, `width`: the network size (smaller-network ablation).
 
-Fields take the encodings of their inputs, computed once per batch by the caller (`nerf.Samples`), so the main
-field and every augmentation evaluated at the same points share that work.
+The encodings come from the samples' cache (`Samples.encoded_positions`), so the main field and every augmentation
+evaluated at the same points share that work.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ import torch
 from torch import nn
 
 from simplenerf.model.encodings import band_slice, encoded_dim
+from simplenerf.model.samples import Samples
 
 
 @dataclass
@@ -28,7 +35,24 @@ class FieldOutputs:
     rgb: torch.Tensor  # [R, S, 3] in [0, 1]
 
 
-class RadianceField(nn.Module):
+class Field(nn.Module):
+    """A radiance field: `field(samples) -> FieldOutputs`. Subclasses implement `forward`."""
+
+    def forward(self, samples: Samples) -> FieldOutputs:
+        raise NotImplementedError
+
+    def parameter_groups(self) -> dict[str, list[nn.Parameter]]:
+        """This field's parameters by optimiser group name (`SimpleNeRF.group_lr` gives a group its own learning
+        rate); one group "mlp" by default. A grid returns e.g. {"grid": ..., "decoder": ...}."""
+        return {"mlp": list(self.parameters())}
+
+    def regularization(self) -> torch.Tensor | None:
+        """The field's own weighted regulariser (e.g. total variation of a grid), added to the loss once per step;
+        None: none."""
+        return None
+
+
+class RadianceField(Field):
     """An MLP field sigma, c = F(gamma(p), gamma(v))."""
 
     def __init__(
@@ -45,8 +69,8 @@ class RadianceField(nn.Module):
     ) -> None:
         """
         Args:
-            point_bands: L_p, bands of the shared point encoding gamma(p, 0, L_p) the field receives.
-            view_bands: L_v, bands of the shared direction encoding.
+            point_bands: L_p, bands of the point encoding gamma(p, 0, L_p) (10 in the paper).
+            view_bands: L_v, bands of the direction encoding (4 in the paper).
             density_bands: bands the density trunk uses, gamma(p, 0, l); None = all L_p (main field).
             residual_bands_to_color: feed the bands the trunk does not use, gamma(p, l, L_p), to the colour branch.
             view_dependent: colour depends on the view direction; if False the trunk outputs density and RGB.
@@ -61,6 +85,7 @@ class RadianceField(nn.Module):
             raise ValueError(f"density_bands must be in [0, {point_bands}], got {density_bands}")
         if skip_layer is not None and not 0 < skip_layer < num_layers:
             raise ValueError(f"skip_layer must be in (0, {num_layers}), got {skip_layer}")
+        self.point_bands, self.view_bands = point_bands, view_bands
         self.view_dependent = view_dependent
         self.skip_layer = skip_layer
         self.trunk_slice = band_slice(3, 0, density_bands, include_input=True)
@@ -90,12 +115,9 @@ class RadianceField(nn.Module):
                 raise ValueError("residual_bands_to_color needs a colour branch (view_dependent=True)")
             self.output = nn.Linear(width, 4)
 
-    def forward(self, points_enc: torch.Tensor, dirs_enc: torch.Tensor) -> FieldOutputs:
-        """
-        Args:
-            points_enc: [R, S, 3(2 L_p + 1)] gamma(p, 0, L_p) of the sample points.
-            dirs_enc: [R, 3(2 L_v + 1)] gamma(v, 0, L_v) of the normalised ray directions.
-        """
+    def forward(self, samples: Samples) -> FieldOutputs:
+        """Density and colour at the samples from gamma(p, 0, L_p) and, if view-dependent, gamma(v, 0, L_v)."""
+        points_enc = samples.encoded_positions(self.point_bands)  # [R, S, 3(2 L_p + 1)]
         x = points_enc[..., self.trunk_slice]
         h = x
         for i, layer in enumerate(self.trunk):
@@ -106,6 +128,7 @@ class RadianceField(nn.Module):
         color_in = [self.feature(h)]
         if self.residual_bands_to_color:
             color_in.append(points_enc[..., self.residual_slice])
+        dirs_enc = samples.encoded_directions(self.view_bands)  # [R, 3(2 L_v + 1)]
         color_in.append(dirs_enc[:, None, :].expand(*h.shape[:-1], dirs_enc.shape[-1]))
         rgb = torch.sigmoid(self.color(torch.cat(color_in, dim=-1)))
         return FieldOutputs(raw_density=self.density_head(h)[..., 0], rgb=rgb)

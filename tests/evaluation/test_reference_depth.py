@@ -10,13 +10,13 @@ from torch import nn
 from simplenerf.data.llff import LLFFDataModule, load_llff_scene
 from simplenerf.errors import DataError
 from simplenerf.evaluation.reference_depth import export_reference_depth
-from simplenerf.model.nerf import NeRF
+from simplenerf.model.nerf import NeRF, mlp_nerf
 
 
 def test_export_writes_every_frame_and_loads_back_scaled(synthetic_scene, tmp_path):
     scene = load_llff_scene(synthetic_scene, factor=1, n_views=2)
     torch.manual_seed(0)
-    nerf = NeRF(num_coarse=4, num_fine=4, num_layers=2, width=16, skip_layer=1)
+    nerf = mlp_nerf(num_coarse=4, num_fine=4, num_layers=2, width=16, skip_layer=1)
     paths = export_reference_depth(nerf, scene, near=1.0, chunk=1000, out_dir=tmp_path / "depth")
     assert [p.name for p in paths] == [f"{i:03d}.npy" for i in range(20)]  # train and test frames alike
     assert sorted(p.name for p in (tmp_path / "depth").iterdir()) == [p.name for p in paths]

@@ -2,7 +2,8 @@ import pytest
 import torch
 
 from simplenerf.model.encodings import positional_encoding
-from simplenerf.model.fields import RadianceField
+from simplenerf.model.fields import Field, RadianceField
+from simplenerf.model.samples import Samples
 
 
 def encodings(rays: int = 4, samples: int = 5):
@@ -10,12 +11,40 @@ def encodings(rays: int = 4, samples: int = 5):
     return p, positional_encoding(p, 10), positional_encoding(v, 4)
 
 
+def at(p_enc: torch.Tensor, v_enc: torch.Tensor) -> Samples:
+    """Samples whose cached encodings are the given ones (so a test can perturb an encoding directly)."""
+    r, s = p_enc.shape[:2]
+    zeros = torch.zeros(r, s)
+    samples = Samples(zeros, zeros, zeros, p_enc[..., :3], v_enc[..., :3])
+    samples._encodings.update(positions=p_enc, directions=v_enc)
+    return samples
+
+
+def test_samples_encode_once_and_share_lower_bands():
+    p, p_enc, v_enc = encodings()
+    samples = Samples(*(torch.zeros(4, 5),) * 3, p, v_enc[..., :3])
+    full = samples.encoded_positions(10)
+    assert torch.equal(full, p_enc)
+    low = samples.encoded_positions(3)
+    assert torch.equal(low, positional_encoding(p, 3)) and low.data_ptr() == full.data_ptr()  # a view, no new work
+    assert torch.equal(samples.encoded_directions(4), v_enc)
+
+
+def test_fields_are_called_with_samples():
+    _, p_enc, v_enc = encodings()
+    field = RadianceField(num_layers=2, width=8, skip_layer=None)
+    assert isinstance(field, Field) and set(field.parameter_groups()) == {"mlp"}
+    assert field.regularization() is None
+    out = field(at(p_enc, v_enc))
+    assert out.raw_density.shape == (4, 5) and out.rgb.shape == (4, 5, 3)
+
+
 def test_main_field_layout_of_the_release():
     field = RadianceField()
     assert [layer.in_features for layer in field.trunk] == [63, 256, 256, 256, 256, 256 + 63, 256, 256]
     assert field.color[0].in_features == 283
     _, p_enc, v_enc = encodings()
-    out = field(p_enc, v_enc)
+    out = field(at(p_enc, v_enc))
     assert out.raw_density.shape == (4, 5) and out.rgb.shape == (4, 5, 3)
     assert bool(((out.rgb > 0) & (out.rgb < 1)).all())
 
@@ -28,7 +57,7 @@ def test_points_augmentation_sees_only_low_bands_in_its_trunk():
     # Changing only the high bands leaves density unchanged but changes colour.
     perturbed = p_enc.clone()
     perturbed[..., 21:] += 1.0
-    a, b = field(p_enc, v_enc), field(perturbed, v_enc)
+    a, b = field(at(p_enc, v_enc)), field(at(perturbed, v_enc))
     assert torch.equal(a.raw_density, b.raw_density)
     assert not torch.allclose(a.rgb, b.rgb)
 
@@ -37,14 +66,14 @@ def test_views_augmentation_ignores_directions():
     field = RadianceField(view_dependent=False)
     assert field.output.out_features == 4
     _, p_enc, v_enc = encodings()
-    a, b = field(p_enc, v_enc), field(p_enc, -v_enc)
+    a, b = field(at(p_enc, v_enc)), field(at(p_enc, -v_enc))
     assert torch.equal(a.rgb, b.rgb) and torch.equal(a.raw_density, b.raw_density)
 
 
 def test_main_field_colour_depends_on_direction():
     _, p_enc, v_enc = encodings()
     field = RadianceField()
-    assert not torch.allclose(field(p_enc, v_enc).rgb, field(p_enc, -v_enc).rgb)
+    assert not torch.allclose(field(at(p_enc, v_enc)).rgb, field(at(p_enc, -v_enc)).rgb)
 
 
 def test_invalid_configurations_are_rejected():

@@ -1,7 +1,7 @@
 import torch
 
 from simplenerf.geometry.rays import RayBundle, make_rays
-from simplenerf.model.nerf import NeRF
+from simplenerf.model.nerf import NeRF, mlp_nerf
 
 K = torch.tensor([[[40.0, 0.0, 16.0], [0.0, 40.0, 12.0], [0.0, 0.0, 1.0]]])
 C2W = torch.cat([torch.eye(3), torch.zeros(3, 1)], dim=1)[None]
@@ -14,7 +14,7 @@ def rays(n: int = 32) -> RayBundle:
 
 def small_nerf() -> NeRF:
     torch.manual_seed(0)
-    return NeRF(num_coarse=16, num_fine=8, num_layers=3, width=32, skip_layer=2)
+    return mlp_nerf(num_coarse=16, num_fine=8, num_layers=3, width=32, skip_layer=2)
 
 
 def test_forward_shapes_and_fine_samples():
@@ -22,8 +22,8 @@ def test_forward_shapes_and_fine_samples():
     out = nerf(rays(), randomized=True)
     assert out.coarse.rgb.shape == (32, 3) and out.fine.depth.shape == (32,)
     assert out.coarse.weights.shape == (32, 16) and out.fine.weights.shape == (32, 24)
-    assert out.coarse_samples.points_enc.shape == (32, 16, 63)
-    assert torch.equal(out.fine_samples.dirs_enc, out.coarse_samples.dirs_enc)
+    assert out.coarse_samples.encoded_positions(10).shape == (32, 16, 63)
+    assert torch.equal(out.fine_samples.encoded_directions(4), out.coarse_samples.encoded_directions(4))
 
 
 def test_depth_lies_between_near_plane_and_far_samples():

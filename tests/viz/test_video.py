@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from simplenerf.data.llff import load_llff_scene
-from simplenerf.model.nerf import NeRF
+from simplenerf.model.nerf import NeRF, mlp_nerf
 from simplenerf.viz.trajectories import scene_trajectory
 from simplenerf.viz.video import compose_frame, depth_colour_range, downscale_intrinsics, frame_rays, render_video
 from tests.conftest import REPO
@@ -17,7 +17,7 @@ from tests.conftest import REPO
 
 def tiny_nerf() -> NeRF:
     torch.manual_seed(0)
-    return NeRF(num_coarse=4, num_fine=4, num_layers=2, width=8, skip_layer=1)
+    return mlp_nerf(num_coarse=4, num_fine=4, num_layers=2, width=8, skip_layer=1)
 
 
 def read_video(path: Path) -> list[np.ndarray]:

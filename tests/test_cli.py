@@ -15,8 +15,9 @@ import yaml
 from tests.conftest import REPO, shared_dir
 
 SMALL = [
-    "--model.nerf.num_coarse", "8", "--model.nerf.num_fine", "8", "--model.nerf.num_layers", "2",
-    "--model.nerf.width", "16", "--model.nerf.skip_layer", "1", "--model.chunk", "4096",
+    "--model.nerf.num_coarse", "8", "--model.nerf.num_fine", "8",
+    *(f"--model.nerf.{f}.{k}={v}" for f in ("coarse", "fine") for k, v in (("num_layers", 2), ("width", 16))),
+    *(f"--model.nerf.{f}.skip_layer=1" for f in ("coarse", "fine")), "--model.chunk", "4096",
     "--data.init_args.rays_per_batch", "64", "--data.init_args.sparse_rays_per_batch", "32",
     "--trainer.val_check_interval", "2", "--checkpoint.every_n_train_steps", "2",
 ]
@@ -138,7 +139,7 @@ def test_print_config_is_commented_and_reloadable(tmp_path):
     assert "# lambda_1, weight of the colour loss." in printed  # argument docs become comments
     config = tmp_path / "printed.yaml"
     config.write_text(printed)
-    assert yaml.safe_load(printed)["model"]["nerf"]["init_args"]["width"] == 64
+    assert yaml.safe_load(printed)["model"]["nerf"]["init_args"]["coarse"]["init_args"]["width"] == 64
     reprinted = run("fit", "--config", str(config), "--print_config").stdout
     original = run("fit", "--config", "configs/demo.yaml", "--print_config").stdout
     assert yaml.safe_load(reprinted) == yaml.safe_load(original)

@@ -1,11 +1,17 @@
-"""Training callbacks: throughput on the progress bar, and checkpoints that survive a crash."""
+"""Training callbacks: progress (a bar in a terminal, plain lines in a log file), throughput, checkpoints that
+survive a crash, and a stop when the loss stops being a number."""
 
 from __future__ import annotations
 
+import datetime
+import sys
 import time
 
 import lightning as L
-from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+import torch
+from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, RichProgressBar
+
+from simplenerf.errors import TrainingDiverged
 
 
 class RaysPerSecond(L.Callback):
@@ -26,7 +32,7 @@ class RaysPerSecond(L.Callback):
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         if self._start is None:
             return
-        rate = batch["rgb"].shape[0] / max(time.perf_counter() - self._start, 1e-9)
+        rate = len(batch.rays) / max(time.perf_counter() - self._start, 1e-9)
         self._rate = rate if self._rate is None else self.smoothing * self._rate + (1 - self.smoothing) * rate
         pl_module.log("rays_per_s", self._rate, prog_bar=True, logger=False)
         pl_module.log("train/rays_per_s", rate)
@@ -76,8 +82,134 @@ class Checkpointing(ModelCheckpoint):
             trainer.save_checkpoint(f"{self.dirpath}/last.ckpt")
 
     def on_exception(self, trainer, pl_module, exception: BaseException) -> None:
+        # After a divergence the weights are not worth keeping: last.ckpt stays the last good checkpoint.
+        if isinstance(exception, TrainingDiverged):
+            return
         if trainer.state.fn == "fit" and self.dirpath is not None and trainer.global_step > 0:
             trainer.save_checkpoint(f"{self.dirpath}/last.ckpt")
+
+
+class StopOnNonFiniteLoss(L.Callback):
+    """Stops training with `TrainingDiverged` as soon as the loss is NaN or infinite, before its backward pass and
+    optimiser step, so the weights and every checkpoint written so far stay finite (`Checkpointing` then writes no
+    last.ckpt). Costs one scalar device-to-host copy per step; under DDP the ranks decide together."""
+
+    def on_before_backward(self, trainer, pl_module, loss: torch.Tensor) -> None:
+        bad = not bool(torch.isfinite(loss.detach()).all())
+        if trainer.world_size > 1:
+            bad = trainer.strategy.reduce_boolean_decision(bad, all=False)
+        if bad:
+            raise TrainingDiverged(f"training stopped at step {trainer.global_step + 1}: the loss is "
+                                   f"{loss.detach().float().item()}")
+
+
+class TrainingProgressBar(RichProgressBar):
+    """Rich's progress bar, with the training bar counting optimiser steps out of `max_steps`: after a resume it
+    starts at the checkpoint's step, and its time estimate covers the steps still to run."""
+
+    @property
+    def total_train_batches(self) -> int | float:
+        return self.trainer.max_steps if self.trainer.max_steps > 0 else super().total_train_batches
+
+    def _get_train_description(self, current_epoch: int) -> str:
+        return f"{'Training':{len(self.validation_description)}}"
+
+    def on_train_epoch_start(self, trainer, pl_module) -> None:
+        super().on_train_epoch_start(trainer, pl_module)
+        if self.progress is not None and self.train_progress_bar_id is not None:
+            # Rich leaves the first progress sample out of its speed, so this jump does not distort the estimate.
+            self.progress.update(self.train_progress_bar_id, completed=trainer.global_step)
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        super().on_train_batch_end(trainer, pl_module, outputs, batch, trainer.global_step - 1)
+
+
+def format_duration(seconds: float) -> str:
+    """H:MM:SS, e.g. 0:03:20."""
+    return str(datetime.timedelta(seconds=round(max(seconds, 0.0))))
+
+
+class ProgressLog(L.Callback):
+    """Plain progress lines for log files, printed when stdout is not a terminal (where the progress bar is not
+    shown), e.g.
+
+        step 120/500 (24%)  loss 0.0123  psnr 19.42  1534 rays/s  elapsed 0:01:02  eta 0:03:20
+        step 250/500  validation  psnr 18.21
+        step 250/500  checkpoint  runs/demo/checkpoints
+
+    loss is the total training loss of the step, psnr the fine network's on the step's rays (`train/psnr_fine`),
+    rays/s the smoothed throughput (`RaysPerSecond`) and eta the time the remaining steps take at this run's average
+    pace so far. Printed by global rank 0.
+    """
+
+    def __init__(self, every_n_steps: int | None = None, lines: bool | None = None) -> None:
+        """
+        Args:
+            every_n_steps: print a training line every this many steps; null: about 100 lines per run
+                (max_steps / 100).
+            lines: print the lines; null: only when stdout is not a terminal (a log file or a pipe).
+        """
+        self.every_n_steps, self.lines = every_n_steps, lines
+        self._active = False
+        self._start_time = 0.0
+        self._start_step = 0
+        self._checkpoint_step: int | None = None
+
+    def setup(self, trainer, pl_module, stage: str) -> None:
+        self._active = trainer.is_global_zero and (self.lines if self.lines is not None else not sys.stdout.isatty())
+
+    def _total(self, trainer) -> str:
+        return str(trainer.max_steps) if trainer.max_steps > 0 else "?"
+
+    def _print(self, trainer, text: str, percent: bool = False) -> None:
+        step, total = trainer.global_step, trainer.max_steps
+        where = f"step {step}/{self._total(trainer)}"
+        if percent and total > 0:
+            where += f" ({100 * step / total:.0f}%)"
+        print(f"{where}  {text}", flush=True)
+
+    def interval(self, trainer) -> int:
+        if self.every_n_steps is not None:
+            return max(1, self.every_n_steps)
+        return max(1, trainer.max_steps // 100) if trainer.max_steps > 0 else 100
+
+    def on_train_start(self, trainer, pl_module) -> None:
+        self._start_time, self._start_step = time.perf_counter(), trainer.global_step
+        if self._active and trainer.global_step > 0:
+            self._print(trainer, f"resumed from {trainer.ckpt_path}")
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        step = trainer.global_step
+        if not self._active or (step % self.interval(trainer) and step != trainer.max_steps):
+            return
+        metrics = trainer.callback_metrics
+        parts = []
+        for key, label, fmt in (("train/loss", "loss", ".4g"), ("train/psnr_fine", "psnr", ".2f")):
+            if key in metrics:
+                parts.append(f"{label} {float(metrics[key]):{fmt}}")
+        if "rays_per_s" in metrics:
+            parts.append(f"{float(metrics['rays_per_s']):.0f} rays/s")
+        elapsed = time.perf_counter() - self._start_time
+        parts.append(f"elapsed {format_duration(elapsed)}")
+        done = step - self._start_step
+        if trainer.max_steps > 0 and done > 0:
+            parts.append(f"eta {format_duration(elapsed / done * (trainer.max_steps - step))}")
+        self._print(trainer, "  ".join(parts), percent=True)
+
+    def on_validation_end(self, trainer, pl_module) -> None:
+        if not self._active or trainer.sanity_checking or trainer.state.fn != "fit":
+            return
+        scores = [f"{key.removeprefix('val/')} {float(value):.2f}" for key, value in trainer.callback_metrics.items()
+                  if key.startswith("val/") and "/" not in key.removeprefix("val/")]
+        self._print(trainer, "  ".join(["validation", *scores]))
+
+    def on_save_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
+        # Called once per file (a numbered checkpoint and last.ckpt at the same step): one line per step.
+        if not self._active or self._checkpoint_step == trainer.global_step:
+            return
+        self._checkpoint_step = trainer.global_step
+        folder = trainer.checkpoint_callback.dirpath if trainer.checkpoint_callback is not None else None
+        self._print(trainer, f"checkpoint  {folder}" if folder else "checkpoint")
 
 
 class LossWeightSchedule(L.Callback):

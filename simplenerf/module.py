@@ -1,25 +1,55 @@
-"""The LightningModule: composes the NeRF, its losses and the optimiser; nothing else lives here.
+"""The LightningModule: composes the NeRF, its augmentations and the losses; nothing else lives here.
 
-`training_step` mirrors the paper's total loss (Sec. 4.4), L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc,
-with the terms that are configured; evaluation (metrics, files) is the `evaluation.Evaluator` callback's job.
+`training_step` mirrors the paper's total loss (Sec. 4.4), L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc, with
+the terms that are configured. Pictures are the callbacks' job (`simplenerf.viz.renders`), evaluation (metrics,
+files) the `Evaluator`'s.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Literal
 
 import lightning as L
-import numpy as np
 import torch
+from lightning.pytorch.cli import LRSchedulerCallable, OptimizerCallable
 from torch import nn
 
+from simplenerf.data.batches import Frame, RayBatch, TrainingBatch
 from simplenerf.evaluation.metrics import psnr
-from simplenerf.geometry.rays import RayBundle, make_rays, pixel_grid
+from simplenerf.geometry.rays import pixel_grid
+from simplenerf.geometry.views import Views
 from simplenerf.method.augmentations import Augmentation
-from simplenerf.method.losses import color_loss, sparse_depth_loss
-from simplenerf.method.reliability import MaskContext, ReliabilityMask, mask_fractions, masked_depth_loss, nearest_views
-from simplenerf.model.nerf import NeRF
-from simplenerf.viz.renders import publish_picture
+from simplenerf.method.losses import coarse_fine_sparse_loss, color_loss, psnr_of_mse, sparse_depth_loss
+from simplenerf.method.reliability import ReliabilityMask, mask_fractions, masked_depth_loss
+from simplenerf.model.nerf import NeRF, NeRFOutputs
+from simplenerf.model.rendering import RenderOutputs
+from simplenerf.optim import ExponentialDecay, default_optimizer, parameter_groups
+
+RESERVED_LOSS_NAMES = ("color", "sparse_depth", "cfc", "regularization")
+
+
+@dataclass
+class Renders:
+    """Every render of a batch of rays: the main coarse and fine NeRF and each augmentation, by name."""
+
+    main: NeRFOutputs
+    augmented: dict[str, RenderOutputs]
+
+    def split(self, n: int) -> tuple[Renders, Renders]:
+        """The renders of the first n rays (a training batch's random rays) and of the rest (its sparse rays)."""
+        (first, rest), augmented = self.main.split(n), self.augmented.items()
+        return Renders(first, {k: r[:n] for k, r in augmented}), Renders(rest, {k: r[n:] for k, r in augmented})
+
+
+@dataclass
+class DepthPair:
+    """One masked depth loss: the main render tied to another one (an augmentation's, or fine for L_cfc)."""
+
+    name: str
+    mask: ReliabilityMask
+    main: RenderOutputs
+    other: RenderOutputs
 
 
 class SimpleNeRF(L.LightningModule):
@@ -34,10 +64,10 @@ class SimpleNeRF(L.LightningModule):
         color_weight: float = 1.0,
         sparse_depth_weight: float = 0.1,
         coarse_fine_weight: float = 0.1,
-        coarse_fine_on_sparse_rays: bool = False,
-        lr: float = 5e-4,
-        lr_decay_rate: float = 0.1,
-        lr_decay_steps: int = 250000,
+        coarse_fine_on_sparse_rays: bool = True,
+        optimizer: OptimizerCallable | None = None,
+        lr_scheduler: LRSchedulerCallable | None = None,
+        group_lr: dict[str, float] | None = None,
         chunk: int = 8192,
     ) -> None:
         """
@@ -54,146 +84,131 @@ class SimpleNeRF(L.LightningModule):
             sparse_depth_weight: lambda_2, weight of DS-NeRF's sparse-depth loss (used when the data module serves
                 sparse-depth rays, `sparse_rays_per_batch` > 0).
             coarse_fine_weight: lambda_5, weight of L_cfc (a warm-up schedule may override it per step).
-            coarse_fine_on_sparse_rays: the release also adds an unmasked (z_coarse - sg(z_fine))^2 on the
-                sparse-depth rays to L_cfc.
-            lr: initial Adam learning rate.
-            lr_decay_rate: the learning rate is lr * lr_decay_rate ** (step / lr_decay_steps). The authors' release
-                uses 0.1 over 250000 steps (ends near 2e-4 at 100k; the published scores); the paper's text,
-                "decay to 5e-6", is 0.01 over 100000 steps.
-            lr_decay_steps: see lr_decay_rate.
+            coarse_fine_on_sparse_rays: as the release, L_cfc also has an unmasked (z_coarse - sg(z_fine))^2 on the
+                sparse-depth rays: the only path by which SfM depth reaches the main coarse field.
+            optimizer: the optimiser, given the parameter groups; null: Adam(lr 5e-4, betas 0.9 / 0.999), the
+                release's.
+            lr_scheduler: the learning-rate schedule, stepped every iteration; null: `ExponentialDecay(0.1, 250000)`,
+                the release's (lr * 0.1^(step / 250000)).
+            group_lr: learning rates of named parameter groups (a field's `parameter_groups()`, e.g. a grid's
+                "grid" and "decoder"); the other groups take the optimiser's.
             chunk: rays per forward pass when rendering full frames (bounds memory, not results).
         """
         super().__init__()
-        self.save_hyperparameters(ignore=["nerf", "augmentations", "coarse_fine_mask"])
+        self.save_hyperparameters(ignore=["nerf", "augmentations", "coarse_fine_mask", "optimizer", "lr_scheduler"])
         self.nerf = nerf
         self.augmentations = nn.ModuleList(augmentations or [])
         self.coarse_fine_mask = coarse_fine_mask
+        self.optimizer, self.lr_scheduler, self.group_lr = optimizer, lr_scheduler, dict(group_lr or {})
         names = [aug.name for aug in self.augmentations]
-        if len(set(names)) != len(names) or {"color", "sparse_depth", "cfc"} & set(names):
-            raise ValueError(f"augmentation names must be unique and not color/sparse_depth/cfc, got {names}")
+        if len(set(names)) != len(names) or set(RESERVED_LOSS_NAMES) & set(names):
+            raise ValueError(f"augmentation names must be unique and not one of {RESERVED_LOSS_NAMES}, got {names}")
         # lambda_1 .. lambda_5 by loss name; `callbacks.LossWeightSchedule` changes them per step (the warm-up).
         self.loss_weights = {"color": color_weight, "sparse_depth": sparse_depth_weight, "cfc": coarse_fine_weight}
         self.loss_weights.update({aug.name: aug.depth_weight for aug in self.augmentations})
-        self.train_views: tuple[torch.Tensor, ...] | None = None  # images, intrinsics, c2w, nearest (for masks)
+        self.train_views: Views | None = None  # what the reliability masks look at, on the module's device
+
+    @property
+    def needs_masks(self) -> bool:
+        """Whether training compares depths across train views (needs at least 2 train views)."""
+        return bool(self.augmentations) or self.coarse_fine_mask is not None
 
     def on_fit_start(self) -> None:
-        if self.augmentations or self.coarse_fine_mask is not None:
-            views = self.trainer.datamodule.train_views
-            self.train_views = tuple(t.to(self.device) for t in (views.images, views.intrinsics, views.c2w))
-            self.train_views += (nearest_views(self.train_views[2]),)
+        if self.needs_masks:
+            self.train_views = self.trainer.datamodule.train_views.to(self.device)
 
-    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        rays = RayBundle.from_batch(batch)
-        n = len(rays)  # random rays first, then the sparse-depth rays, all rendered in one pass
-        has_sparse = "sparse_depth" in batch
-        if has_sparse:
-            rays = rays.cat(RayBundle.from_batch(batch, prefix="sparse_"))
-        main = self.nerf(rays, randomized=True)
-        augmented = [aug.render(self.nerf, main, randomized=True) for aug in self.augmentations]
+    def render(self, rays, randomized: bool) -> Renders:
+        """The main NeRF and every augmentation along `rays` (a `RayBundle`)."""
+        main = self.nerf(rays, randomized=randomized)
+        return Renders(main, {aug.name: aug.render(self.nerf, main, randomized) for aug in self.augmentations})
+
+    def training_step(self, batch: TrainingBatch, batch_idx: int) -> torch.Tensor:
+        # One pass over the random rays followed by the sparse-depth rays, then split.
+        random, sparse = self.render(batch.rays, randomized=True).split(len(batch.random))
+        augmented = list(random.augmented.values())
 
         # L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc (paper Sec. 4.4)
-        renders = [main.coarse, main.fine, *augmented]
-        losses = {"color": color_loss([r[:n] for r in renders], batch["rgb"])}
-        if has_sparse:  # not on the main coarse depth
-            sparse = [r[n:] for r in renders[1:]]
-            losses["sparse_depth"] = sparse_depth_loss(sparse, batch["sparse_depth"], batch["sparse_weight"])
-        for name, mask, tied, other in self.depth_pairs(main, augmented):
-            if self.loss_weights[name] > 0:  # free before the warm-up ends
-                losses[name] = self.depth_supervision(name, mask, batch, tied[:n], other[:n])
-        if "cfc" in losses and has_sparse and self.hparams.coarse_fine_on_sparse_rays:
-            losses["cfc"] = losses["cfc"] + torch.mean((main.coarse.depth[n:] - main.fine.depth[n:].detach()) ** 2)
+        losses = {"color": color_loss([random.main.coarse, random.main.fine, *augmented], batch.random.rgb)}
+        if batch.sparse is not None:  # on the main fine depth and the augmentations, not on main coarse
+            renders = [sparse.main.fine, *sparse.augmented.values()]
+            losses["sparse_depth"] = sparse_depth_loss(renders, batch.sparse.depth, batch.sparse.weight)
+        for pair in self.depth_pairs(random):  # L_ap, L_av, L_cfc: masked, free before the warm-up ends
+            if self.loss_weights[pair.name] > 0:
+                losses[pair.name] = self.masked_depth_loss(pair, batch.random)
+        if "cfc" in losses and batch.sparse is not None and self.hparams.coarse_fine_on_sparse_rays:
+            losses["cfc"] = losses["cfc"] + coarse_fine_sparse_loss(sparse.main.coarse, sparse.main.fine)
         loss = sum(self.loss_weights[name] * value for name, value in losses.items())
+        if (regularization := self.field_regularization()) is not None:  # a grid field's own (weighted) terms
+            losses["regularization"] = regularization
+            loss = loss + regularization
 
         # sync_dist: under DDP every rank trains on its own rays; the logged values are their mean (no-op otherwise).
         self.log_dict({f"train/loss_{name}": value for name, value in losses.items()}, sync_dist=True)
-        self.log_dict({"train/loss": loss, "train/psnr_fine": psnr_of_mse(main.fine[:n].rgb, batch["rgb"])},
-                      sync_dist=True)
+        train_psnr = psnr_of_mse(random.main.fine.rgb, batch.random.rgb)
+        self.log_dict({"train/loss": loss, "train/psnr_fine": train_psnr}, sync_dist=True)
         self.log("loss", loss, prog_bar=True, logger=False)
         return loss
 
-    def depth_pairs(self, main, augmented: list) -> list[tuple[str, ReliabilityMask, object, object]]:
-        """(loss name, mask, main render, other render) of every masked depth loss: L_ap, L_av, ..., then L_cfc."""
-        pairs = [(aug.name, aug.mask, aug.main_output(main), out)
-                 for aug, out in zip(self.augmentations, augmented, strict=True)]
+    def depth_pairs(self, renders: Renders) -> list[DepthPair]:
+        """Every masked depth loss of these renders: L_ap, L_av, ... (one per augmentation), then L_cfc."""
+        pairs = [DepthPair(aug.name, aug.mask, aug.main_output(renders.main), renders.augmented[aug.name])
+                 for aug in self.augmentations]
         if self.coarse_fine_mask is not None:
-            pairs.append(("cfc", self.coarse_fine_mask, main.coarse, main.fine))
+            pairs.append(DepthPair("cfc", self.coarse_fine_mask, renders.main.coarse, renders.main.fine))
         return pairs
 
-    def depth_supervision(self, name: str, mask: ReliabilityMask, batch: dict, main, other) -> torch.Tensor:
-        """The masked depth loss between a main render and another one (augmentation, or fine for L_cfc)."""
+    def masked_depth_loss(self, pair: DepthPair, rays: RayBatch) -> torch.Tensor:
+        """The masked depth loss of one pair on train rays `rays`; logs the fractions of its mask values."""
         assert self.train_views is not None, "on_fit_start did not run"
-        context = MaskContext.from_batch(*self.train_views, batch)
-        m = mask(context, main.depth.detach(), other.depth.detach())
-        if m is not None:
-            self.log_dict({f"train/mask_{name}/{k}": v for k, v in mask_fractions(m).items()}, sync_dist=True)
-        return masked_depth_loss(main.depth, other.depth, m, self.hparams.supervision)
+        mask = pair.mask(self.train_views, rays, pair.main.depth.detach(), pair.other.depth.detach())
+        if mask is not None:
+            self.log_dict({f"train/mask_{pair.name}/{k}": v for k, v in mask_fractions(mask).items()}, sync_dist=True)
+        return masked_depth_loss(pair.main.depth, pair.other.depth, mask, self.hparams.supervision)
 
-    def render_frame(self, batch: dict) -> dict[str, torch.Tensor]:
+    def field_regularization(self) -> torch.Tensor | None:
+        """The sum of every field's own regulariser (`Field.regularization`), or None when no field has one."""
+        fields = [self.nerf.coarse, self.nerf.fine, *(aug.field for aug in self.augmentations)]
+        terms = [t for t in (f.regularization() for f in fields) if t is not None]
+        return sum(terms) if terms else None
+
+    def render_frame(self, frame: Frame) -> dict[str, torch.Tensor]:
         """Deterministic full-frame render: rgb [H, W, 3], depth [H, W], accumulation [H, W], coarse_depth [H, W]."""
-        h, w = int(batch["height"]), int(batch["width"])
-        out = self.nerf.render_rays_chunked(RayBundle.from_batch(batch), self.hparams.chunk)
-        return {k: v.reshape(h, w, *v.shape[1:]) for k, v in out.items()}
+        out = self.nerf.render_rays_chunked(frame.rays, self.hparams.chunk)
+        return {k: v.reshape(frame.height, frame.width, *v.shape[1:]) for k, v in out.items()}
 
-    def validation_step(self, batch: dict, batch_idx: int) -> dict[str, torch.Tensor]:
+    def validation_step(self, batch: Frame, batch_idx: int) -> dict[str, torch.Tensor]:
         pred = self.render_frame(batch)
-        target = batch["rgb"].reshape(pred["rgb"].shape)
-        self.log("val/psnr", psnr(pred["rgb"][None], target[None])[0], prog_bar=True, batch_size=1, sync_dist=True)
+        frame_psnr = psnr(pred["rgb"][None], batch.rgb.reshape(pred["rgb"].shape)[None])[0]  # 8-bit, as in test
+        self.log("val/psnr", frame_psnr, prog_bar=True, batch_size=1, sync_dist=True)
         return pred
-
-    def on_validation_epoch_end(self) -> None:
-        """Logs the reliability masks on the first train view: fractions of +1/-1/0 and an image per mask."""
-        if self.train_views is None or self.trainer.sanity_checking:
-            return
-        for name, m in self.reliability_maps(view=0).items():
-            self.log_dict({f"val/mask_{name}/{k}": v for k, v in mask_fractions(m).items()}, sync_dist=True)
-            if not self.trainer.is_global_zero:  # every rank computed the same maps; one writes them
-                continue
-            file_name = f"mask_{name}_step{self.global_step:06d}.png"
-            publish_picture(self.trainer, f"val/mask_{name}", mask_picture(m), file_name)
 
     @torch.no_grad()
     def reliability_maps(self, view: int) -> dict[str, torch.Tensor]:
         """Masks [H, W] in {-1, 0, +1} of each augmentation and of L_cfc on train view `view`, at every pixel."""
         assert self.train_views is not None, "on_fit_start did not run"
-        images, intrinsics, c2w, _ = self.train_views
-        h, w = images.shape[1:3]
+        views, chunk = self.train_views, self.hparams.chunk
+        h, w = views.height, views.width
         uv = pixel_grid(h, w, self.device)
-        views = torch.full((h * w,), view, device=self.device)
+        index = torch.full((h * w,), view, device=self.device)
         maps: dict[str, list[torch.Tensor]] = {}
-        for start in range(0, h * w, self.hparams.chunk):
-            part = make_rays(intrinsics[view : view + 1], c2w[view : view + 1], uv[start : start + self.hparams.chunk],
-                             w, h, self.nerf.near)
-            part.update(view=views[start : start + self.hparams.chunk], uv=uv[start : start + self.hparams.chunk])
-            main = self.nerf(RayBundle.from_batch(part), randomized=False)
-            context = MaskContext.from_batch(*self.train_views, part)
-            augmented = [aug.render(self.nerf, main, False) for aug in self.augmentations]
-            for name, mask, main_out, other in self.depth_pairs(main, augmented):
-                m = mask(context, main_out.depth, other.depth)
+        for start in range(0, h * w, chunk):
+            part_view, part_uv = index[start : start + chunk], uv[start : start + chunk]
+            rays = RayBatch(views.rays(part_view, part_uv, self.nerf.near), views.images[part_view, part_uv[:, 1],
+                            part_uv[:, 0]], part_view, part_uv)  # fmt: skip
+            for pair in self.depth_pairs(self.render(rays.rays, randomized=False)):
+                m = pair.mask(views, rays, pair.main.depth, pair.other.depth)
                 if m is not None:
-                    maps.setdefault(name, []).append(m)
+                    maps.setdefault(pair.name, []).append(m)
         return {name: torch.cat(parts).reshape(h, w) for name, parts in maps.items()}
 
-    def test_step(self, batch: dict, batch_idx: int) -> dict[str, torch.Tensor]:
+    def test_step(self, batch: Frame, batch_idx: int) -> dict[str, torch.Tensor]:
         return self.render_frame(batch)
 
-    def predict_step(self, batch: dict, batch_idx: int) -> dict[str, torch.Tensor]:
+    def predict_step(self, batch: Frame, batch_idx: int) -> dict[str, torch.Tensor]:
         return self.render_frame(batch)
 
     def configure_optimizers(self):
-        optimizer = torch.optim.Adam(self.parameters(), lr=self.hparams.lr, betas=(0.9, 0.999))
-        rate, steps = self.hparams.lr_decay_rate, self.hparams.lr_decay_steps
-        schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: rate ** (step / steps))
+        groups = parameter_groups(self, self.group_lr)
+        optimizer = (self.optimizer or default_optimizer)(groups)
+        schedule = self.lr_scheduler(optimizer) if self.lr_scheduler is not None else ExponentialDecay(optimizer)
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
-
-
-def mask_picture(mask: torch.Tensor) -> np.ndarray:
-    """8-bit RGB picture of a ternary mask as in the paper's supplement: black where the other (augmented or fine)
-    depth is preferred (+1), white where the main depth is (-1), grey where neither is reliable (0)."""
-    grey = (127.5 * (1.0 - mask.float())).round().clamp(0, 255).to(torch.uint8).cpu().numpy()
-    return np.repeat(grey[..., None], 3, axis=-1)
-
-
-@torch.no_grad()
-def psnr_of_mse(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Training PSNR (float, not 8-bit: a progress signal, not an evaluation metric)."""
-    return -10.0 * torch.log10(torch.mean((rgb - target) ** 2))

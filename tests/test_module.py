@@ -3,6 +3,7 @@
 import pytest
 import torch
 
+from simplenerf.data.batches import TrainingBatch
 from simplenerf.data.synthetic import SyntheticDataModule
 from simplenerf.model.nerf import NeRF, mlp_nerf
 from simplenerf.module import SimpleNeRF
@@ -54,8 +55,7 @@ def test_without_sparse_rays_only_colour_counts(batch, monkeypatch):
     logged = {}
     monkeypatch.setattr(model, "log_dict", lambda values, **kw: logged.update(values))
     monkeypatch.setattr(model, "log", lambda *a, **kw: None)
-    plain = {k: v for k, v in batch.items() if not k.startswith("sparse_")}
-    loss = model.training_step(plain, 0)
+    loss = model.training_step(TrainingBatch(batch.random), 0)
     assert "train/loss_sparse_depth" not in logged and torch.allclose(loss, logged["train/loss_color"])
 
 
@@ -144,7 +144,7 @@ def test_loss_weight_schedule_is_data():
 
 
 def test_reliability_maps_of_a_train_view(datamodule, monkeypatch):
-    from simplenerf.module import mask_picture
+    from simplenerf.viz.pictures import mask_picture
 
     model = simplenerf_module()
     model.hparams.chunk = 20000

@@ -1,6 +1,6 @@
 """Ray datasets shared by every scene format: random training rays and full frames.
 
-A `Views` holds images and cameras of a set of frames; the datasets index into it, so no image is copied per step.
+The datasets index into a `Views` (images and cameras of a set of frames), so no image is copied per step.
 """
 
 from __future__ import annotations
@@ -11,33 +11,9 @@ from dataclasses import dataclass
 import torch
 from torch.utils.data import Dataset, IterableDataset, get_worker_info
 
-from simplenerf.geometry.rays import make_rays, pixel_grid
-
-
-@dataclass
-class Views:
-    """Frames of one scene, as tensors (see `simplenerf.geometry.rays` for the camera conventions)."""
-
-    images: torch.Tensor  # [V, H, W, 3] in [0, 1]
-    intrinsics: torch.Tensor  # [V, 3, 3]
-    c2w: torch.Tensor  # [V, 3, 4]
-    names: list[str]  # [V] file names, for outputs
-    depths: torch.Tensor | None = None  # [V, H, W] reference camera z-depth, when known
-
-    @property
-    def height(self) -> int:
-        return self.images.shape[1]
-
-    @property
-    def width(self) -> int:
-        return self.images.shape[2]
-
-    def __len__(self) -> int:
-        return self.images.shape[0]
-
-    def rays(self, view: torch.Tensor, uv: torch.Tensor, near: float) -> dict[str, torch.Tensor]:
-        """Ray fields for pixels uv [R, 2] of views view [R] (see `rays.make_rays`)."""
-        return make_rays(self.intrinsics[view], self.c2w[view], uv, self.width, self.height, near)
+from simplenerf.data.batches import Frame, RayBatch, SparseDepthBatch, TrainingBatch
+from simplenerf.geometry.rays import pixel_grid
+from simplenerf.geometry.views import Views
 
 
 @dataclass
@@ -64,7 +40,7 @@ class RandomRays(IterableDataset):
 
     Epoch-style: every pixel is drawn once before the pool is reshuffled. Each distributed rank and data-loader
     worker draws from its own generator, so they see different rays. With a sparse-depth pool, every batch also
-    carries `sparse_rays_per_batch` rays drawn (with replacement) from it, under keys prefixed `sparse_`.
+    carries `sparse_rays_per_batch` rays drawn (with replacement) from it (`TrainingBatch.sparse`).
     """
 
     def __init__(
@@ -82,15 +58,18 @@ class RandomRays(IterableDataset):
         self.views, self.rays_per_batch, self.near, self.seed = views, rays_per_batch, near, seed
         self.sparse, self.sparse_rays_per_batch = sparse, sparse_rays_per_batch if sparse is not None else 0
 
-    def sparse_batch(self, generator: torch.Generator) -> dict[str, torch.Tensor]:
+    def sparse_batch(self, generator: torch.Generator) -> SparseDepthBatch:
         assert self.sparse is not None
         index = torch.randint(len(self.sparse), (self.sparse_rays_per_batch,), generator=generator)
-        view = self.sparse.view[index]
-        batch = self.views.rays(view, self.sparse.uv[index], self.near)
-        batch.update(depth=self.sparse.depth[index], weight=self.sparse.weight[index], view=view)
-        return {f"sparse_{k}": v for k, v in batch.items()}
+        view, uv = self.sparse.view[index], self.sparse.uv[index]
+        # The keypoint's nearest pixel colour (no loss uses it; the batch type has colours).
+        u = uv[:, 0].round().long().clamp(0, self.views.width - 1)
+        v = uv[:, 1].round().long().clamp(0, self.views.height - 1)
+        rgb = self.views.images[view, v, u]
+        return SparseDepthBatch(self.views.rays(view, uv, self.near), rgb, view, uv, self.sparse.depth[index],
+                                self.sparse.weight[index])
 
-    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+    def __iter__(self) -> Iterator[TrainingBatch]:
         worker = get_worker_info()
         generator = torch.Generator().manual_seed(self.seed + 1000 * _rank() + (worker.id if worker else 0))
         h, w = self.views.height, self.views.width
@@ -101,11 +80,10 @@ class RandomRays(IterableDataset):
                 index = order[start : start + self.rays_per_batch]
                 view, pixel = index // (h * w), index % (h * w)
                 uv = torch.stack([pixel % w, pixel // w], dim=-1)
-                batch = self.views.rays(view, uv, self.near)
-                batch.update(rgb=self.views.images[view, uv[:, 1], uv[:, 0]], view=view, uv=uv)
-                if self.sparse_rays_per_batch:
-                    batch.update(self.sparse_batch(generator))
-                yield batch
+                rgb = self.views.images[view, uv[:, 1], uv[:, 0]]
+                random = RayBatch(self.views.rays(view, uv, self.near), rgb, view, uv)
+                sparse = self.sparse_batch(generator) if self.sparse_rays_per_batch else None
+                yield TrainingBatch(random, sparse)
 
 
 class Frames(Dataset):
@@ -118,12 +96,9 @@ class Frames(Dataset):
     def __len__(self) -> int:
         return len(self.indices)
 
-    def __getitem__(self, i: int) -> dict:
+    def __getitem__(self, i: int) -> Frame:
         index = self.indices[i]
         h, w = self.views.height, self.views.width
-        item = self.views.rays(torch.full((h * w,), index), pixel_grid(h, w), self.near)
-        item.update(rgb=self.views.images[index].reshape(-1, 3), index=index, name=self.views.names[index])
-        item.update(height=h, width=w)
-        if self.views.depths is not None:
-            item["depth"] = self.views.depths[index].reshape(-1)
-        return item
+        rays = self.views.rays(torch.full((h * w,), index), pixel_grid(h, w), self.near)
+        depth = None if self.views.depths is None else self.views.depths[index].reshape(-1)
+        return Frame(rays, self.views.images[index].reshape(-1, 3), depth, index, self.views.names[index], h, w)

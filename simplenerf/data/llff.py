@@ -14,35 +14,30 @@ split, whose train bounds set the scale; loading multiplies by the scale.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import re
 from pathlib import Path
 
 import cv2
-import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader
 
-from simplenerf.data.datasets import Frames, RandomRays, SparseDepthPool, Views
-from simplenerf.data.sparse_depth import load_or_compute_sparse_depth
+from simplenerf.data.scene import Scene, SceneDataModule, Split, explicit_split
 from simplenerf.errors import DataError
+from simplenerf.geometry.views import Views
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
-@dataclass
-class Split:
-    """Frame indices (into the scene's sorted frames) of each role."""
-
-    train: list[int]
-    test: list[int]
-    val: list[int]
-
-
-def llff_split(num_frames: int, n_views: int | None, test_every: int = 8) -> Split:
+def llff_split(
+    num_frames: int, n_views: int | None, test_every: int = 8, train_frames: list[int] | None = None
+) -> Split:
     """The paper's LLFF split for a scene of `num_frames` frames and `n_views` training views (None: every non-test
-    frame, the dense reference NeRF's split)."""
-    test = list(range(0, num_frames, test_every))
+    frame, the dense reference NeRF's split), or the explicit `train_frames`. test_every 0: no test frames."""
+    test = list(range(0, num_frames, test_every)) if test_every > 0 else []
+    if train_frames is not None:
+        return explicit_split(num_frames, train_frames, test)
+    if not test:
+        raise DataError("test_every 0 (no test frames) needs an explicit train_frames list")
     pool = [i for i in range(num_frames) if i not in test]
     if n_views is None:
         if not pool:
@@ -62,8 +57,39 @@ def read_image(path: Path) -> np.ndarray:
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
+def read_same_size_images(paths: list[Path]) -> list[np.ndarray]:
+    """Every image of `paths` ([H, W, 3] uint8); DataError naming the first whose size differs from the first's."""
+    images = []
+    for path in paths:
+        image = read_image(path)
+        if images and image.shape != images[0].shape:
+            (h, w), (h0, w0) = image.shape[:2], images[0].shape[:2]
+            raise DataError(f"{path} is {w}x{h} but {paths[0].name} is {w0}x{h0}: all images must have the same size")
+        images.append(image)
+    return images
+
+
+def natural_key(name: str) -> list[int | str]:
+    """Sort key that orders the numbers inside a name by value: img2 before img10."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name)]
+
+
 def list_images(directory: Path) -> list[Path]:
-    return sorted(p for p in directory.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    """The images of a folder in name order, which is the order of the rows of poses_bounds.npy.
+
+    Raises DataError when names sort differently as text and by their numbers (img10 before img2 as text): which
+    pose belongs to which image would then be a guess.
+    """
+    paths = sorted(p for p in directory.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    by_number = sorted(paths, key=lambda p: natural_key(p.name))
+    for text, number in zip(paths, by_number, strict=True):
+        if text != number:
+            raise DataError(
+                f"{directory}: image names sort differently as text and by number (as text {text.name} comes before "
+                f"{number.name}), so which pose of poses_bounds.npy belongs to which image is ambiguous; rename them "
+                "with zero-padded numbers (e.g. img002.png)"
+            )
+    return paths
 
 
 def poses_to_opengl(poses_bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -97,16 +123,6 @@ def recenter(c2w: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return np.stack([(ref_inv @ np.concatenate([p, to_h]))[:3] for p in c2w])
 
 
-@dataclass
-class LLFFScene:
-    """All frames of a scene, scaled and recentred, with the split."""
-
-    views: Views
-    split: Split
-    scale: float  # scene units per file unit
-    bounds: np.ndarray  # [N, 2] near/far per frame, scene units
-
-
 def image_dir(scene_dir: Path, factor: int) -> Path:
     return scene_dir / ("images" if factor == 1 else f"images_{factor}")
 
@@ -131,7 +147,23 @@ def check_scene(scene_dir: Path, factor: int) -> tuple[list[Path], np.ndarray]:
         raise DataError(f"{poses_file} has shape {poses_bounds.shape}, expected [num_frames, 17]")
     if len(paths) != len(poses_bounds):
         raise DataError(f"{images} has {len(paths)} images but {poses_file} has {len(poses_bounds)} poses")
+    check_poses_bounds(poses_bounds, poses_file, [p.name for p in paths])
     return paths, poses_bounds
+
+
+def check_poses_bounds(poses_bounds: np.ndarray, source: Path, names: list[str]) -> None:
+    """DataError naming `source` and the first bad frame: a non-finite number, a non-positive image size or focal
+    length, or bounds that are not 0 < near < far. `names` [N] name the frames (their image files)."""
+    mats = poses_bounds[:, :15].reshape(-1, 3, 5)
+    for i, (row, name) in enumerate(zip(poses_bounds, names, strict=True)):
+        where = f"{source}: frame {i} ({name})"
+        if not np.all(np.isfinite(row)):
+            raise DataError(f"{where} has a non-finite value: {np.array2string(row, precision=4, separator=', ')}")
+        if not np.all(mats[i, :, 4] > 0):
+            raise DataError(f"{where} has height, width, focal {mats[i, :, 4].tolist()}; all must be positive")
+        near, far = row[15:17]
+        if not 0 < near < far:
+            raise DataError(f"{where} has near bound {near:g} and far bound {far:g}; they must be 0 < near < far")
 
 
 def read_reference_depth(directory: str | Path, names: list[str], height: int, width: int) -> np.ndarray:
@@ -171,16 +203,14 @@ def make_views(
 
 def load_llff_scene(
     scene_dir: str | Path, factor: int, n_views: int | None, test_every: int = 8,
-    reference_depth_dir: str | Path | None = None,
-) -> LLFFScene:
+    reference_depth_dir: str | Path | None = None, train_frames: list[int] | None = None,
+) -> Scene:
     """Reads every frame of an LLFF scene at `images_{factor}`, with reference depth from `reference_depth_dir` if
     given, else from `depths_{factor}/` if present."""
     scene_dir = Path(scene_dir)
     paths, poses_bounds = check_scene(scene_dir, factor)
-    split = llff_split(len(paths), n_views, test_every)
-    images = np.stack([read_image(p) for p in paths])
-    if len({im.shape for im in images}) > 1:
-        raise DataError(f"images in {paths[0].parent} differ in size")
+    split = llff_split(len(paths), n_views, test_every, train_frames)
+    images = np.stack(read_same_size_images(paths))
     height, width = images.shape[1:3]
 
     c2w, hwf, bounds = poses_to_opengl(poses_bounds)
@@ -200,126 +230,30 @@ def load_llff_scene(
     elif depth_dir.is_dir():
         depths = read_reference_depth(depth_dir, names, height, width)
     views = make_views(images, intrinsics, c2w, names, depths, scale)
-    return LLFFScene(views=views, split=split, scale=scale, bounds=bounds * scale)
+    return Scene(views=views, split=split, scale=scale, bounds=bounds * scale)
 
 
 def subset(views: Views, indices: list[int]) -> Views:
-    """The views at `indices` (views of a scene -> views of one split)."""
-    return Views(
-        images=views.images[indices],
-        intrinsics=views.intrinsics[indices],
-        c2w=views.c2w[indices],
-        names=[views.names[i] for i in indices],
-        depths=None if views.depths is None else views.depths[indices],
-    )
+    """The views at `indices` (`Views.subset`)."""
+    return views.subset(indices)
 
 
-class LLFFDataModule(L.LightningDataModule):
-    """An LLFF-layout scene: random training rays from the n train views, full validation and test frames."""
+class LLFFDataModule(SceneDataModule):
+    """An LLFF-layout scene (`poses_bounds.npy`, `images_N/`); rays, splits and sparse depth: `SceneDataModule`."""
 
-    def __init__(
-        self,
-        scene_dir: str,
-        n_views: int | None = 2,
-        factor: int = 4,
-        rays_per_batch: int = 2048,
-        test_every: int = 8,
-        near: float = 1.0,
-        seed: int = 0,
-        num_workers: int = 0,
-        sparse_rays_per_batch: int = 0,
-        sparse_depth_cache: str = "data/cache/sparse_depth",
-        sparse_depth_weighting: bool = False,
-        reference_depth_dir: str | None = None,
-    ) -> None:
+    def __init__(self, scene_dir: str, factor: int = 4, test_every: int = 8, **kwargs) -> None:
         """
         Args:
             scene_dir: the scene folder, e.g. data/nerf_llff_data/fern (holds poses_bounds.npy and images_N/).
-            n_views: number of training views (2, 3 or 4 in the paper); null: every non-test frame (the dense
-                reference NeRF, configs/dense/).
             factor: image downsampling factor: reads images_{factor}/ (1 reads images/); the paper uses 4.
-            rays_per_batch: random training rays per iteration.
-            test_every: every this-many-th frame is a test frame.
-            near: NDC near plane in scaled scene units.
-            seed: seed of the training-ray order.
-            num_workers: data-loader worker processes for training rays.
-            sparse_rays_per_batch: rays per iteration at pixels with an SfM depth, for the sparse-depth loss
-                (DS-NeRF / SimpleNeRF: 2048); 0 disables sparse depth.
-            sparse_depth_cache: folder where the sparse depth of a scene, view set and resolution is cached.
-            sparse_depth_weighting: weight each point by DS-NeRF's 2 exp(-(err / mean err)^2) of its reprojection
-                error (off in DS-NeRF's and SimpleNeRF's releases).
-            reference_depth_dir: folder of reference depth `<frame name>.npy` (camera z-depth in file units, e.g. a
-                dense NeRF's export by tools/export_reference_depth.py) for depth metrics; null: `depths_{factor}/`
-                next to the images if present (the synthetic scene's exact depth), else no depth metrics.
+            test_every: every this-many-th frame is a test frame (the paper: 8); 0: no test frames (own photos).
         """
-        super().__init__()
-        self.scene_dir, self.n_views, self.factor = Path(scene_dir), n_views, factor
-        self.rays_per_batch, self.test_every, self.near = rays_per_batch, test_every, near
-        self.seed, self.num_workers = seed, num_workers
-        self.sparse_rays_per_batch, self.sparse_depth_cache = sparse_rays_per_batch, sparse_depth_cache
-        self.sparse_depth_weighting = sparse_depth_weighting
-        self.reference_depth_dir = reference_depth_dir
-        self.scene: LLFFScene | None = None
-        self.sparse_depth: SparseDepthPool | None = None
+        super().__init__(**kwargs)
+        self.scene_dir, self.factor, self.test_every = Path(scene_dir), factor, test_every
 
-    def check_inputs(self, stage: str) -> None:
-        """Loads everything `stage` needs; the CLI calls this before loggers or outputs start, so bad input (a missing
-        or unreadable file, an impossible split, a scene without SfM points) stops the run with nothing written."""
-        self.setup(stage)
+    def cache_key(self) -> dict:
+        return {**super().cache_key(), "factor": self.factor}
 
-    def load_scene(self) -> LLFFScene:
-        """All frames of the scene with the split; subclasses for other formats override this alone."""
-        return load_llff_scene(self.scene_dir, self.factor, self.n_views, self.test_every, self.reference_depth_dir)
-
-    def setup(self, stage: str) -> None:
-        if self.scene is None:
-            self.scene = self.load_scene()
-        if stage == "fit" and self.sparse_rays_per_batch and self.sparse_depth is None:
-            self.sparse_depth = self.load_sparse_depth()
-
-    def load_sparse_depth(self) -> SparseDepthPool:
-        """SfM depth of the train views (poses fixed), computed with pycolmap on first use and cached."""
-        train = self.train_views
-        key = {"scene": str(self.scene_dir.resolve()), "views": self.scene.split.train, "factor": self.factor,
-               "height": train.height, "width": train.width}
-        print(f"sparse depth: SfM on train views {self.scene.split.train} of {self.scene_dir} "
-              f"(cached in {self.sparse_depth_cache}) ...", flush=True)
-        per_view = load_or_compute_sparse_depth(self.sparse_depth_cache, key, train.images, train.intrinsics,
-                                                train.c2w)
-        for i, sd in zip(self.scene.split.train, per_view, strict=True):
-            print(f"  frame {i}: {len(sd)} points, median reprojection error "
-                  f"{np.median(sd.reprojection_error):.2f} px", flush=True)
-        dtype = train.images.dtype
-        error = torch.from_numpy(np.concatenate([sd.reprojection_error for sd in per_view])).to(dtype)
-        weight = torch.ones_like(error)
-        if self.sparse_depth_weighting:
-            weight = 2 * torch.exp(-((error / error.mean()) ** 2))
-        return SparseDepthPool(
-            view=torch.cat([torch.full((len(sd),), i) for i, sd in enumerate(per_view)]),
-            uv=torch.from_numpy(np.concatenate([sd.pixels for sd in per_view])).to(dtype),
-            depth=torch.from_numpy(np.concatenate([sd.depth for sd in per_view])).to(dtype),
-            weight=weight,
-        )
-
-    @property
-    def train_views(self) -> Views:
-        assert self.scene is not None, "call setup() first"
-        return subset(self.scene.views, self.scene.split.train)
-
-    def train_dataloader(self) -> DataLoader:
-        rays = RandomRays(self.train_views, self.rays_per_batch, self.near, self.seed, self.sparse_depth,
-                          self.sparse_rays_per_batch)
-        return DataLoader(rays, batch_size=None, num_workers=self.num_workers)
-
-    def _frames(self, indices: list[int]) -> DataLoader:
-        assert self.scene is not None, "call setup() first"
-        return DataLoader(Frames(self.scene.views, self.near, indices), batch_size=None)
-
-    def val_dataloader(self) -> DataLoader:
-        return self._frames(self.scene.split.val)
-
-    def test_dataloader(self) -> DataLoader:
-        return self._frames(self.scene.split.test)
-
-    def predict_dataloader(self) -> DataLoader:
-        return self._frames(self.scene.split.test)
+    def load_scene(self) -> Scene:
+        return load_llff_scene(self.scene_dir, self.factor, self.n_views, self.test_every, self.reference_depth_dir,
+                               self.train_frames)

@@ -22,15 +22,13 @@ import numpy as np
 
 from simplenerf.data.llff import (
     IMAGE_SUFFIXES,
-    LLFFDataModule,
-    LLFFScene,
-    Split,
     average_pose,
     make_views,
-    read_image,
     read_reference_depth,
+    read_same_size_images,
     recenter,
 )
+from simplenerf.data.scene import Scene, SceneDataModule, Split, explicit_split
 from simplenerf.errors import DataError
 
 # The paper's train frames in order of use: the first n train the n-view model.
@@ -40,11 +38,16 @@ BOUNDS = (1.0, 100.0)  # near / far in file units, fixed as in the paper (ViP-Ne
 FIELDS_PER_LINE = 19  # timestamp, fx fy cx cy, two zeros, a 3x4 matrix
 
 
-def realestate_split(n_views: int | None, clip_length: int = 50, split_views: int = 2) -> Split:
+def realestate_split(
+    n_views: int | None, clip_length: int = 50, split_views: int = 2, train_frames: list[int] | None = None
+) -> Split:
     """The paper's split of a clip of `clip_length` frames for `n_views` training views (2, 3 or 4).
 
     n_views None is the dense split: train = every frame not in the test set of the `split_views`-view split.
+    Explicit `train_frames` train instead, tested on the `split_views` split's test frames that do not train.
     """
+    if train_frames is not None:
+        return explicit_split(clip_length, train_frames, realestate_split(split_views, clip_length).test)
     if n_views is None:
         sparse = realestate_split(split_views, clip_length)
         test = set(sparse.test)
@@ -85,6 +88,10 @@ def read_camera_file(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
             raise DataError(f"{path} line {number}: expected numbers after the timestamp ({e})") from e
         if not fields[0].isdigit():
             raise DataError(f"{path} line {number}: expected an integer timestamp first, got {fields[0]!r}")
+        if not all(np.isfinite(values)):
+            raise DataError(f"{path} line {number} (frame {fields[0]}): the camera has a non-finite value")
+        if not all(v > 0 for v in values[:2]):
+            raise DataError(f"{path} line {number} (frame {fields[0]}): focal lengths fx fy must be positive")
         timestamps.append(fields[0])
         numbers.append(values)
     if not numbers:
@@ -122,8 +129,8 @@ def frame_path(frames_dir: Path, timestamp: str) -> Path | None:
 
 def load_realestate_scene(
     scene_dir: str | Path, n_views: int | None, clip_start: int = 0, clip_length: int = 50, split_views: int = 2,
-    reference_depth_dir: str | Path | None = None,
-) -> LLFFScene:
+    reference_depth_dir: str | Path | None = None, train_frames: list[int] | None = None,
+) -> Scene:
     """Reads the clip of `clip_length` frames from line `clip_start` of the camera file, scaled and recentred."""
     scene_dir = Path(scene_dir)
     if not scene_dir.is_dir():
@@ -136,7 +143,7 @@ def load_realestate_scene(
     if clip_start < 0 or clip_length < 1 or clip_start + clip_length > len(timestamps):
         raise DataError(f"{camera_file} has {len(timestamps)} frames; the clip needs frames {clip_start} to "
                         f"{clip_start + clip_length - 1} (clip_start={clip_start}, clip_length={clip_length})")
-    split = realestate_split(n_views, clip_length, split_views)
+    split = realestate_split(n_views, clip_length, split_views, train_frames)
     clip = slice(clip_start, clip_start + clip_length)
     timestamps, normalised, w2c = timestamps[clip], normalised[clip], w2c[clip]
     paths = []
@@ -145,11 +152,7 @@ def load_realestate_scene(
         if path is None:
             raise DataError(f"{frames_dir} has no frame {timestamp}.png for timestamp {timestamp} of {camera_file}")
         paths.append(path)
-    frames = [read_image(p) for p in paths]
-    sizes = {im.shape[:2] for im in frames}
-    if len(sizes) > 1:
-        raise DataError(f"frames in {frames_dir} differ in size (height, width): {sorted(sizes)}")
-    images = np.stack(frames)
+    images = np.stack(read_same_size_images(paths))
     height, width = images.shape[1:3]
 
     scale = 1.0 / (0.75 * BOUNDS[0])  # as LLFF: the near bound lands at 4/3, in front of the NDC near plane 1
@@ -161,10 +164,10 @@ def load_realestate_scene(
         depths = read_reference_depth(reference_depth_dir, timestamps, height, width)
     views = make_views(images, pixel_intrinsics(normalised, height, width), c2w, timestamps, depths, scale)
     bounds = np.tile(np.array(BOUNDS) * scale, (clip_length, 1))
-    return LLFFScene(views=views, split=split, scale=scale, bounds=bounds)
+    return Scene(views=views, split=split, scale=scale, bounds=bounds)
 
 
-class RealEstateDataModule(LLFFDataModule):
+class RealEstateDataModule(SceneDataModule):
     """A RealEstate-10K clip with the paper's split; rays, sparse depth and frames work as for LLFF.
 
     Note: in this project's copy of scene 000c3ab189999a83 (256x256 centre crops, intrinsics adjusted), 18 of the 50
@@ -175,50 +178,22 @@ class RealEstateDataModule(LLFFDataModule):
     video_trajectory = "recorded"  # tools/render_video.py follows the clip's own camera path (LLFF: a spiral)
 
     def __init__(
-        self,
-        scene_dir: str,
-        n_views: int | None = 2,
-        clip_start: int = 0,
-        clip_length: int = 50,
-        split_views: int = 2,
-        rays_per_batch: int = 2048,
-        near: float = 1.0,
-        seed: int = 0,
-        num_workers: int = 0,
-        sparse_rays_per_batch: int = 0,
-        sparse_depth_cache: str = "data/cache/sparse_depth",
-        sparse_depth_weighting: bool = False,
-        reference_depth_dir: str | None = None,
+        self, scene_dir: str, clip_start: int = 0, clip_length: int = 50, split_views: int = 2, **kwargs
     ) -> None:
         """
         Args:
             scene_dir: the video's folder, e.g. data/realestate10k/000c3ab189999a83 (holds <id>.txt and frames/).
-            n_views: number of training views, 2, 3 or 4 (train frames {10, 20}, {10, 20, 30}, {0, 10, 20, 30} of
-                the clip); null: every clip frame outside the test set of `split_views` views (the dense reference
-                NeRF, configs/dense/realestate.yaml).
+                n_views 2, 3, 4 train frames {10, 20}, {10, 20, 30}, {0, 10, 20, 30} of the clip; null: every clip
+                frame outside the test set of `split_views` views (the dense reference NeRF).
             clip_start: index of the clip's first frame among the camera file's frame lines.
             clip_length: number of consecutive frames in the clip (50 in the paper).
             split_views: with n_views null, whose test frames are held out: the dense reference for the n-view
                 evaluation is the one trained with split_views n (the test set depends on the view count).
-            rays_per_batch: random training rays per iteration.
-            near: NDC near plane in scaled scene units.
-            seed: seed of the training-ray order.
-            num_workers: data-loader worker processes for training rays.
-            sparse_rays_per_batch: rays per iteration at pixels with an SfM depth, for the sparse-depth loss
-                (DS-NeRF / SimpleNeRF: 2048); 0 disables sparse depth.
-            sparse_depth_cache: folder where the sparse depth of a scene, view set and resolution is cached.
-            sparse_depth_weighting: weight each point by DS-NeRF's 2 exp(-(err / mean err)^2) of its reprojection
-                error (off in DS-NeRF's and SimpleNeRF's releases).
-            reference_depth_dir: folder of reference depth `<timestamp>.npy` (camera z-depth in file units, a dense
-                NeRF's export by tools/export_reference_depth.py) for depth metrics; null: no depth metrics.
         """
-        super().__init__(
-            scene_dir, n_views=n_views, rays_per_batch=rays_per_batch, near=near, seed=seed, num_workers=num_workers,
-            sparse_rays_per_batch=sparse_rays_per_batch, sparse_depth_cache=sparse_depth_cache,
-            sparse_depth_weighting=sparse_depth_weighting, reference_depth_dir=reference_depth_dir,
-        )
+        super().__init__(**kwargs)
+        self.scene_dir = Path(scene_dir)
         self.clip_start, self.clip_length, self.split_views = clip_start, clip_length, split_views
 
-    def load_scene(self) -> LLFFScene:
+    def load_scene(self) -> Scene:
         return load_realestate_scene(self.scene_dir, self.n_views, self.clip_start, self.clip_length,
-                                     self.split_views, self.reference_depth_dir)
+                                     self.split_views, self.reference_depth_dir, self.train_frames)

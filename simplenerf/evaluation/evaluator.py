@@ -17,16 +17,16 @@ import subprocess
 from datetime import datetime, timezone
 from pathlib import Path
 
-import cv2
 import lightning as L
 import numpy as np
 import torch
 
-from simplenerf.data.llff import LLFFScene
+from simplenerf.data.scene import Scene
 from simplenerf.errors import DataError
 from simplenerf.evaluation.lpips import LPIPS
 from simplenerf.evaluation.metrics import MASKED_METRIC_NAMES, METRIC_NAMES, PSNR_CAP, frame_scores
 from simplenerf.evaluation.visibility import MIN_VIEWS, scene_visibility_masks
+from simplenerf.viz.pictures import colorize_depth, write_mask_png, write_png
 
 METRICS = METRIC_NAMES
 """Full-frame metrics of summary.json and metrics.csv."""
@@ -35,31 +35,8 @@ MASKED_METRICS = MASKED_METRIC_NAMES
 ALL_METRICS = (*METRICS, *MASKED_METRICS)
 
 
-def colorize_depth(depth: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
-    """An 8-bit RGB picture [H, W, 3] of a depth map [H, W]: turbo colours of inverse depth (near = warm)."""
-    inv = 1.0 / np.maximum(depth, 1e-6)
-    lo = float(np.percentile(inv, 1)) if lo is None else lo
-    hi = float(np.percentile(inv, 99)) if hi is None else hi
-    scaled = np.clip((inv - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
-    return cv2.cvtColor(cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
-
-
-def write_png(path: Path, rgb: np.ndarray) -> None:
-    """Writes an RGB image [H, W, 3] (uint8, or float in [0, 1])."""
-    if rgb.dtype != np.uint8:
-        rgb = np.round(np.clip(rgb, 0.0, 1.0) * 255).astype(np.uint8)
-    if not cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
-        raise OSError(f"could not write {path}")
-
-
-def write_mask_png(path: Path, mask: np.ndarray) -> None:
-    """Writes a bool mask [H, W] as an 8-bit grey PNG: white (255) where True, black elsewhere."""
-    if not cv2.imwrite(str(path), np.where(mask, 255, 0).astype(np.uint8)):
-        raise OSError(f"could not write {path}")
-
-
 def export_visibility_masks(
-    scene: LLFFScene, out_dir: str | Path, min_views: int = MIN_VIEWS, scene_dir: str | Path | None = None
+    scene: Scene, out_dir: str | Path, min_views: int = MIN_VIEWS, scene_dir: str | Path | None = None
 ) -> dict[str, float]:
     """Writes the visibility mask of every test frame of `scene` as `<out_dir>/<frame>.png` (white = visible) and
     `<out_dir>/<frame>.npy` (bool [H, W]); returns frame name -> visible fraction.
@@ -140,14 +117,33 @@ def format_table(rows: list[dict], summary: dict) -> str:
     return "\n".join([header, *body, "-" * len(header), line("mean", values(summary))])
 
 
+def archive_path(folder: Path) -> Path:
+    """A free name beside `folder` for its earlier contents: `<name>.<YYYYmmdd-HHMMSS>` of the time its run.json says
+    it was written (else its modification time), with `-2`, `-3`, ... if taken."""
+    written = None
+    try:
+        written = datetime.fromisoformat(json.loads((folder / "run.json").read_text())["written"])
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    if written is None:
+        written = datetime.fromtimestamp(folder.stat().st_mtime, timezone.utc)
+    base = folder.with_name(f"{folder.name}.{written.astimezone(timezone.utc).strftime('%Y%m%d-%H%M%S')}")
+    path, n = base, 1
+    while path.exists():
+        n += 1
+        path = base.with_name(f"{base.name}-{n}")
+    return path
+
+
 class Evaluator(L.Callback):
     """Scores and saves every rendered test frame; saves renders of `predict`.
 
     Output folder (default `<trainer.default_root_dir>/test`): `rgb/<frame>.png`, `depth/<frame>.npy` (metric depth,
     scene units), `depth/<frame>.png` (colourised), `mask/<frame>.png` (the visibility mask, white = evaluated),
     `metrics.csv` (one row per frame: frame, index, then the ten metric names), `summary.json` (scene, n_views, frames,
-    the means of the ten metrics, checkpoint, git_commit, config), `config.yaml` (a copy of the config the CLI saved
-    for this run, when there is one) and `run.json`.
+    the means of the ten metrics, checkpoint, git_commit, config), `config.yaml` (the config this test ran with, from
+    the CLI; else a copy of the run's, when there is one) and `run.json`. A folder of earlier results is kept, renamed
+    `<folder>.<time it was written>` (`archive_path`).
 
     Scores (SPEC 7): psnr, ssim, lpips, depth_mae, depth_srocc over the full frame, and masked_* over the frame's
     visibility mask. Masks are computed at test setup from the data module's scene (`.scene.views` with reference
@@ -189,6 +185,8 @@ class Evaluator(L.Callback):
         self._final: Path | None = None
         self._partial: Path | None = None
         self._saved_config: Path | None = None
+        self.run_config: str | None = None
+        """YAML of the config this test runs with, set by the CLI (`cli.RunConfig`); saved beside the results."""
 
     def check_inputs(self, stage: str) -> None:
         """Loads LPIPS for `test`: missing weights stop the run before anything is rendered or written."""
@@ -235,23 +233,23 @@ class Evaluator(L.Callback):
         write_png(self._partial / "depth" / f"{name}.png", colorize_depth(depth))
 
     def on_test_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
-        target = batch["rgb"].reshape(outputs["rgb"].shape)
-        gt_depth = batch["depth"].reshape(outputs["depth"].shape) if "depth" in batch else None
+        target = batch.rgb.reshape(outputs["rgb"].shape)
+        gt_depth = batch.depth.reshape(outputs["depth"].shape) if batch.depth is not None else None
         if self.lpips_net is not None:
             self.lpips_net.to(outputs["rgb"].device)
-        index = int(batch["index"])
+        index = int(batch.index)
         mask = self.masks.get(index)
         scores = frame_scores(outputs["rgb"], target, outputs["depth"], gt_depth, self.lpips_net, mask)
-        self.rows.append({"frame": batch["name"], "index": index, **scores})
+        self.rows.append({"frame": batch.name, "index": index, **scores})
         for key, value in scores.items():
             if value is not None:
                 pl_module.log(f"test/{key}", value, batch_size=1)
-        self._save_frame(batch["name"], outputs)
+        self._save_frame(batch.name, outputs)
         if mask is not None:
-            write_mask_png(self._partial / "mask" / f"{batch['name']}.png", mask.cpu().numpy())
+            write_mask_png(self._partial / "mask" / f"{batch.name}.png", mask.cpu().numpy())
 
     def on_predict_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
-        self._save_frame(batch["name"], outputs)
+        self._save_frame(batch.name, outputs)
 
     def _commit_outputs(self, trainer: L.Trainer, extra: dict) -> None:
         assert self._partial is not None and self._final is not None
@@ -260,12 +258,12 @@ class Evaluator(L.Callback):
         with open(self._partial / "run.json", "w") as f:
             json.dump({"written": datetime.now(timezone.utc).isoformat(), "git_commit": git_commit(), **extra}, f,
                       indent=2)
-        backup = self._final.with_name(self._final.name + ".previous")
         if self._final.exists():
-            shutil.rmtree(backup, ignore_errors=True)
-            self._final.rename(backup)
+            # Earlier results are kept, renamed after the time they were written.
+            archive = archive_path(self._final)
+            self._final.rename(archive)
+            print(f"earlier results of {self._final} moved to {archive}", flush=True)
         self._partial.rename(self._final)
-        shutil.rmtree(backup, ignore_errors=True)
 
     def _provenance(self, trainer: L.Trainer) -> dict:
         """scene and n_views of the data module (None if it has none)."""
@@ -286,7 +284,10 @@ class Evaluator(L.Callback):
             writer.writeheader()
             writer.writerows(rows)
         config = None
-        if self._saved_config is not None and self._saved_config.is_file():
+        if self.run_config is not None:
+            (self._partial / "config.yaml").write_text(self.run_config)
+            config = str(self._final / "config.yaml")
+        elif self._saved_config is not None and self._saved_config.is_file():
             shutil.copyfile(self._saved_config, self._partial / "config.yaml")
             config = str(self._final / "config.yaml")
         means = summarize(rows)

@@ -10,17 +10,16 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from simplenerf.data.llff import LLFFScene, subset
+from simplenerf.data.scene import Scene
 from simplenerf.data.sparse_depth import SparseDepth, load_or_compute_sparse_depth
-from simplenerf.geometry.rays import RayBundle
 from simplenerf.model.nerf import NeRF
 
 
-def heldout_observations(scene: LLFFScene, cache_dir: str, scene_key: str) -> dict[int, SparseDepth]:
+def heldout_observations(scene: Scene, cache_dir: str, scene_key: str) -> dict[int, SparseDepth]:
     """SfM observations in the held-out frames (frame index -> keypoints and depths), cached in `cache_dir`."""
     test = set(scene.split.test)
     reference_frames = [i for i in range(len(scene.views)) if i not in test]
-    views = subset(scene.views, reference_frames)
+    views = scene.views.subset(reference_frames)
     key = {"scene": scene_key, "views": reference_frames, "height": views.height, "width": views.width,
            "purpose": "held-out reference"}
     per_view = load_or_compute_sparse_depth(cache_dir, key, views.images, views.intrinsics, views.c2w)
@@ -30,7 +29,7 @@ def heldout_observations(scene: LLFFScene, cache_dir: str, scene_key: str) -> di
 
 @torch.no_grad()
 def heldout_depth_error(
-    nerf: NeRF, scene: LLFFScene, observations: dict[int, SparseDepth], near: float, chunk: int = 8192
+    nerf: NeRF, scene: Scene, observations: dict[int, SparseDepth], near: float, chunk: int = 8192
 ) -> dict[str, float]:
     """Relative depth error |z - z_sfm| / z_sfm of the fine depth at the held-out keypoints.
 
@@ -41,8 +40,7 @@ def heldout_depth_error(
     errors = []
     for frame, sd in observations.items():
         uv = torch.from_numpy(sd.pixels).to(scene.views.c2w.dtype)
-        batch = scene.views.rays(torch.full((len(sd),), frame), uv, near)
-        rays = RayBundle.from_batch({k: v.to(device) for k, v in batch.items()})
+        rays = scene.views.rays(torch.full((len(sd),), frame), uv, near).to(device)
         depth = nerf.render_rays_chunked(rays, chunk)["depth"].cpu().double().numpy()
         errors.append(np.abs(depth - sd.depth) / sd.depth)
     errors_all = np.concatenate(errors)

@@ -17,12 +17,11 @@ from torch import nn
 from tqdm import tqdm
 
 from simplenerf.data.datasets import Frames
-from simplenerf.data.llff import LLFFScene
-from simplenerf.geometry.rays import RayBundle
+from simplenerf.data.scene import Scene
 
 
 @torch.no_grad()
-def export_reference_depth(model_nerf: nn.Module, scene: LLFFScene, near: float, chunk: int, out_dir: str | Path
+def export_reference_depth(model_nerf: nn.Module, scene: Scene, near: float, chunk: int, out_dir: str | Path
                            ) -> list[Path]:
     """Renders the fine depth of every frame of `scene` with `model_nerf` and writes one .npy per frame.
 
@@ -41,10 +40,9 @@ def export_reference_depth(model_nerf: nn.Module, scene: LLFFScene, near: float,
     device = next(model_nerf.parameters()).device
     frames = Frames(scene.views, near)
     written = []
-    for item in tqdm(frames, desc="reference depth", unit="frame"):
-        rays = RayBundle.from_batch({k: v.to(device) for k, v in item.items() if isinstance(v, torch.Tensor)})
-        depth = model_nerf.render_rays_chunked(rays, chunk)["depth"].reshape(item["height"], item["width"])
-        path = out_dir / f"{item['name']}.npy"
+    for frame in tqdm(frames, desc="reference depth", unit="frame"):
+        depth = model_nerf.render_rays_chunked(frame.rays.to(device), chunk)["depth"].reshape(frame.height, frame.width)
+        path = out_dir / f"{frame.name}.npy"
         np.save(path, (depth.double().cpu().numpy() / scene.scale).astype(np.float32))
         written.append(path)
     return written

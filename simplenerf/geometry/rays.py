@@ -36,14 +36,13 @@ class RayBundle:
     def __getitem__(self, index: slice | torch.Tensor) -> RayBundle:
         return RayBundle(*(getattr(self, f.name)[index] for f in fields(self)))
 
+    def to(self, device: torch.device | str) -> RayBundle:
+        """The same rays on `device`."""
+        return RayBundle(*(getattr(self, f.name).to(device) for f in fields(self)))
+
     def cat(self, other: RayBundle) -> RayBundle:
         """These rays followed by `other`'s."""
         return RayBundle(*(torch.cat([getattr(self, f.name), getattr(other, f.name)]) for f in fields(self)))
-
-    @classmethod
-    def from_batch(cls, batch: dict[str, torch.Tensor], prefix: str = "") -> RayBundle:
-        """Collects the fields of a data-module batch (keys `{prefix}origins`, ...)."""
-        return cls(*(batch[prefix + f.name] for f in fields(cls)))
 
 
 def pixel_grid(height: int, width: int, device: torch.device | str | None = None) -> torch.Tensor:
@@ -138,8 +137,11 @@ def ndc_to_metric_t(t_ndc: torch.Tensor, rays: RayBundle, near: float, eps: floa
     return (world_z - rays.origins[:, None, 2]) / rays.directions[:, None, 2]
 
 
-def make_rays(intrinsics: torch.Tensor, c2w: torch.Tensor, uv: torch.Tensor, width: int, height: int, near: float):
-    """Pixel rays in both parametrisations, as the fields of a batch dict (see `RayBundle.from_batch`)."""
+def make_rays(
+    intrinsics: torch.Tensor, c2w: torch.Tensor, uv: torch.Tensor, width: int, height: int, near: float
+) -> RayBundle:
+    """Rays through pixels uv [R, 2] of cameras intrinsics [R or 1, 3, 3], c2w [R or 1, 3, 4], in both
+    parametrisations."""
     origins, directions = pixel_rays(intrinsics, c2w, uv)
     ndc_o, ndc_d = ndc_rays(origins, directions, intrinsics, width, height, near)
-    return {"origins": origins, "directions": directions, "ndc_origins": ndc_o, "ndc_directions": ndc_d}
+    return RayBundle(origins, directions, ndc_o, ndc_d)

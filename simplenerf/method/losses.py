@@ -27,3 +27,15 @@ def sparse_depth_loss(renders: Sequence[RenderOutputs], depth: torch.Tensor, wei
         depth: [R] SfM depths. weight: [R] per-point weights (ones unless DS-NeRF's weighting is on).
     """
     return sum(torch.mean(weight * (r.depth - depth) ** 2) for r in renders)
+
+
+def coarse_fine_sparse_loss(coarse: RenderOutputs, fine: RenderOutputs) -> torch.Tensor:
+    """The release's addition to L_cfc on the sparse-depth rays: mean (z_coarse - sg(z_fine))^2, unmasked."""
+    return torch.mean((coarse.depth - fine.depth.detach()) ** 2)
+
+
+@torch.no_grad()
+def psnr_of_mse(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """PSNR of float colours in [0, 1], -10 log10(MSE): a training / validation progress signal, not the 8-bit
+    evaluation metric (`simplenerf.evaluation.metrics.psnr`)."""
+    return -10.0 * torch.log10(torch.mean((rgb - target.to(rgb)) ** 2))

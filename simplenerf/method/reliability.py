@@ -19,31 +19,19 @@ from __future__ import annotations
 
 import abc
 import math
-from dataclasses import dataclass
 from typing import Literal
 
 import torch
 
-from simplenerf.geometry.rays import project
+from simplenerf.data.batches import RayBatch
+from simplenerf.geometry.views import Views, nearest_views
+
+__all__ = [
+    "PatchReprojectionMask", "ReliabilityMask", "TrustAll", "mask_fractions", "masked_depth_loss", "nearest_views",
+    "patch_reprojection_error", "ternary_mask",
+]  # fmt: skip
 
 Direction = Literal["bidirectional", "one_way"]
-
-
-def nearest_views(c2w: torch.Tensor) -> torch.Tensor:
-    """For each view, the other view whose camera centre is closest (ties: the lowest index).
-
-    Args:
-        c2w: [V, 3, 4] camera-to-world matrices, V >= 2.
-
-    Returns:
-        [V] long indices into the same views, never the view itself.
-    """
-    if c2w.ndim != 3 or c2w.shape[0] < 2:
-        raise ValueError(f"nearest_views needs at least 2 views of c2w [V, 3, 4], got shape {tuple(c2w.shape)}")
-    centres = c2w[:, :3, 3]
-    distance = (centres[:, None] - centres[None]).square().sum(-1)  # [V, V]; exact, unlike cdist's matmul form
-    distance.fill_diagonal_(math.inf)
-    return distance.argmin(dim=1)
 
 
 def _patch_offsets(patch_size: int, device: torch.device) -> torch.Tensor:
@@ -95,40 +83,21 @@ def _source_patches(
 
 
 def _reprojection_error(
-    images: torch.Tensor,
-    intrinsics: torch.Tensor,
-    c2w: torch.Tensor,
-    nearest: torch.Tensor,
-    view: torch.Tensor,
-    origins: torch.Tensor,
-    directions: torch.Tensor,
-    depth: torch.Tensor,
-    source: torch.Tensor,
-    source_inside: torch.Tensor,
-    patch_size: int,
+    views: Views, rays: RayBatch, depth: torch.Tensor, source: torch.Tensor, inside: torch.Tensor, patch_size: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """`patch_reprojection_error` given the already gathered source patches [R, k * k, 3] and their validity [R]."""
-    target_view = nearest[view]
-    points = origins + depth.detach()[:, None] * directions
-    uv_target, z_target = project(points, intrinsics[target_view], c2w[target_view])
-    centre, inside = _centre_pixels(uv_target, images.shape[1], images.shape[2], patch_size // 2)
-    target = _gather_patches(images, target_view, centre, patch_size)
+    target_view = views.nearest[rays.view]
+    points = rays.rays.origins + depth.detach()[:, None] * rays.rays.directions
+    uv_target, z_target = views.project(points, target_view)
+    centre, target_inside = _centre_pixels(uv_target, views.height, views.width, patch_size // 2)
+    target = _gather_patches(views.images, target_view, centre, patch_size)
     error = (source - target).square().mean(dim=(1, 2)).sqrt()
-    valid = source_inside & inside & (z_target > 0)
+    valid = inside & target_inside & (z_target > 0)
     return error.masked_fill(~valid, math.inf), valid
 
 
 def patch_reprojection_error(
-    images: torch.Tensor,
-    intrinsics: torch.Tensor,
-    c2w: torch.Tensor,
-    nearest: torch.Tensor,
-    view: torch.Tensor,
-    uv: torch.Tensor,
-    origins: torch.Tensor,
-    directions: torch.Tensor,
-    depth: torch.Tensor,
-    patch_size: int,
+    views: Views, rays: RayBatch, depth: torch.Tensor, patch_size: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """How well a depth explains the nearest train view: RMSE between the patch at the ray's pixel and the patch at
     the pixel its 3D point reprojects to.
@@ -139,13 +108,9 @@ def patch_reprojection_error(
     continuous (e.g. keypoint) pixels are allowed.
 
     Args:
-        images: [V, H, W, 3] train images in [0, 1].
-        intrinsics: [V, 3, 3] per-view intrinsics.
-        c2w: [V, 3, 4] camera-to-world matrices.
-        nearest: [V] long, `nearest_views(c2w)`.
-        view: [R] long, each ray's view (index into the V train views).
-        uv: [R, 2] each ray's pixel (column, row).
-        origins, directions: [R, 3] the rays (point = o + z d, see `simplenerf.geometry.rays`).
+        views: the V train views (images in [0, 1], per-view cameras, `nearest`).
+        rays: R rays of those views: `view` [R], pixel `uv` [R, 2], `rays.origins` / `rays.directions` [R, 3]
+            (point = o + z d, see `simplenerf.geometry.rays`).
         depth: [R] camera z-depth of each ray's surface point.
         patch_size: k, odd.
 
@@ -154,10 +119,8 @@ def patch_reprojection_error(
         (centres at least k // 2 px from every border) and X is in front of camera b (camera z > 0).
     """
     _check_patch_size(patch_size)
-    source, source_inside = _source_patches(images, view, uv, patch_size)
-    return _reprojection_error(
-        images, intrinsics, c2w, nearest, view, origins, directions, depth, source, source_inside, patch_size
-    )
+    source, source_inside = _source_patches(views.images, rays.view, rays.uv, patch_size)
+    return _reprojection_error(views, rays, depth, source, source_inside, patch_size)
 
 
 def ternary_mask(error_main: torch.Tensor, error_other: torch.Tensor, threshold: float) -> torch.Tensor:
@@ -226,43 +189,15 @@ def masked_depth_loss(
     return loss.mean()
 
 
-@dataclass
-class MaskContext:
-    """What a reliability mask may look at besides the two depths: the train views and the batch's rays."""
-
-    images: torch.Tensor  # [V, H, W, 3] train images in [0, 1]
-    intrinsics: torch.Tensor  # [V, 3, 3]
-    c2w: torch.Tensor  # [V, 3, 4]
-    nearest: torch.Tensor  # [V] long, nearest_views(c2w), computed once per scene
-    view: torch.Tensor  # [R] long, index into the train views
-    uv: torch.Tensor  # [R, 2] pixel (column, row)
-    origins: torch.Tensor  # [R, 3]
-    directions: torch.Tensor  # [R, 3], un-normalised (point = o + z d)
-
-    @classmethod
-    def from_batch(
-        cls,
-        images: torch.Tensor,
-        intrinsics: torch.Tensor,
-        c2w: torch.Tensor,
-        nearest: torch.Tensor,
-        batch: dict[str, torch.Tensor],
-        prefix: str = "",
-    ) -> MaskContext:
-        """The context of a training batch (keys `{prefix}view`, `{prefix}uv`, `{prefix}origins`, ...)."""
-        return cls(
-            images, intrinsics, c2w, nearest,
-            *(batch[prefix + key] for key in ("view", "uv", "origins", "directions")),
-        )  # fmt: skip
-
-
 class ReliabilityMask(abc.ABC):
     """Decides, per ray, which of two depth estimates supervises the other (Sec. 4.2)."""
 
     @abc.abstractmethod
-    def __call__(self, context: MaskContext, z_main: torch.Tensor, z_other: torch.Tensor) -> torch.Tensor | None:
-        """The ternary mask [R] (see `ternary_mask`) for depths z_main, z_other [R], or None for "no mask": every
-        ray is trusted and `masked_depth_loss` applies no stop-gradient."""
+    def __call__(
+        self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor
+    ) -> torch.Tensor | None:
+        """The ternary mask [R] (see `ternary_mask`) for depths z_main, z_other [R] of `rays` (of the train `views`),
+        or None for "no mask": every ray is trusted and `masked_depth_loss` applies no stop-gradient."""
 
 
 class PatchReprojectionMask(ReliabilityMask):
@@ -279,21 +214,21 @@ class PatchReprojectionMask(ReliabilityMask):
             raise ValueError(f"error_threshold must be positive, got {error_threshold}")
         self.patch_size, self.error_threshold = patch_size, error_threshold
 
-    def errors(self, context: MaskContext, z_main: torch.Tensor, z_other: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def errors(
+        self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Reprojection errors of both depths, [R] each (inf where invalid), sharing one gather of the source patch."""
-        c = context
-        source, inside = _source_patches(c.images, c.view, c.uv, self.patch_size)
-        common = (c.images, c.intrinsics, c.c2w, c.nearest, c.view, c.origins, c.directions)
-        error_main, _ = _reprojection_error(*common, z_main, source, inside, self.patch_size)
-        error_other, _ = _reprojection_error(*common, z_other, source, inside, self.patch_size)
+        source, inside = _source_patches(views.images, rays.view, rays.uv, self.patch_size)
+        error_main, _ = _reprojection_error(views, rays, z_main, source, inside, self.patch_size)
+        error_other, _ = _reprojection_error(views, rays, z_other, source, inside, self.patch_size)
         return error_main, error_other
 
-    def __call__(self, context: MaskContext, z_main: torch.Tensor, z_other: torch.Tensor) -> torch.Tensor:
-        return ternary_mask(*self.errors(context, z_main, z_other), self.error_threshold)
+    def __call__(self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor) -> torch.Tensor:
+        return ternary_mask(*self.errors(views, rays, z_main, z_other), self.error_threshold)
 
 
 class TrustAll(ReliabilityMask):
     """No mask: every depth is trusted and both models pull on each other (the paper's "w/o reliable depth")."""
 
-    def __call__(self, context: MaskContext, z_main: torch.Tensor, z_other: torch.Tensor) -> None:
+    def __call__(self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor) -> None:
         return None

@@ -21,10 +21,17 @@ from simplenerf.model.samples import Samples
 
 @dataclass
 class NeRFOutputs:
+    """The coarse and fine renders of R rays, with the samples they were evaluated at."""
+
     coarse: RenderOutputs
     fine: RenderOutputs
     coarse_samples: Samples
     fine_samples: Samples
+
+    def split(self, n: int) -> tuple[NeRFOutputs, NeRFOutputs]:
+        """The outputs of the first n rays and of the rest (e.g. a training batch's random and sparse-depth rays)."""
+        parts = [self.coarse, self.fine, self.coarse_samples, self.fine_samples]
+        return NeRFOutputs(*(p[:n] for p in parts)), NeRFOutputs(*(p[n:] for p in parts))
 
 
 class NeRF(nn.Module):

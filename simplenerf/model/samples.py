@@ -26,6 +26,11 @@ class Samples:
     directions: torch.Tensor  # [R, 3] unit world-space view directions
     _encodings: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
 
+    def __getitem__(self, index: slice) -> Samples:
+        """The samples of a subset of the rays (encodings are recomputed on use)."""
+        return Samples(self.t[index], self.t_metric[index], self.delta[index], self.positions[index],
+                       self.directions[index])
+
     def encoded_positions(self, bands: int) -> torch.Tensor:
         """gamma(p, 0, bands) of the points: [R, S, 3 (2 bands + 1)]."""
         return self._encoding("positions", self.positions, bands)

@@ -1,45 +1,31 @@
-"""Pictures of a validation render (RGB, depth, accumulation, error) and the callback that logs and saves them.
-
-Images are 8-bit RGB numpy arrays [H, W, 3], what both W&B and `evaluation.write_png` take.
+"""The validation pictures and the callback that logs and saves them: RGB, depth, accumulation and error of the
+validation view, and SimpleNeRF's reliability masks on the first train view.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import cv2
 import lightning as L
 import numpy as np
 import torch
 
-from simplenerf.evaluation.evaluator import colorize_depth, write_png
 from simplenerf.evaluation.metrics import psnr
+from simplenerf.method.reliability import mask_fractions
+from simplenerf.viz.pictures import (
+    colorize_depth,
+    colorize_error,
+    grey_picture,
+    mask_picture,
+    publish_picture,
+    to_uint8,
+)
 
 KINDS = ("rgb", "depth", "accumulation", "error")
-
-
-def to_uint8(image: np.ndarray) -> np.ndarray:
-    """Values in [0, 1] (clipped) to 8 bits, same shape."""
-    return np.round(np.clip(image, 0.0, 1.0) * 255).astype(np.uint8)
-
-
-def grey_picture(values: np.ndarray) -> np.ndarray:
-    """[H, W] values in [0, 1] (e.g. accumulated opacity) as a grey RGB picture [H, W, 3]."""
-    return np.repeat(to_uint8(values)[..., None], 3, axis=-1)
 
 
 def error_map(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Per-pixel |pred - target| averaged over channels: [H, W] from images [H, W, 3]."""
     assert pred.shape == target.shape and pred.shape[-1] == 3, f"images differ: {pred.shape} vs {target.shape}"
     return (pred - target.to(pred)).abs().mean(dim=-1)
-
-
-def colorize_error(error: np.ndarray, max_error: float) -> np.ndarray:
-    """An error map [H, W] as an RGB picture [H, W, 3]: inferno colours, 0 black, `max_error` and above brightest.
-
-    The range is fixed rather than per frame so that pictures of different steps can be compared."""
-    scaled = to_uint8(error / max_error)
-    return cv2.cvtColor(cv2.applyColorMap(scaled, cv2.COLORMAP_INFERNO), cv2.COLOR_BGR2RGB)
 
 
 def render_pictures(pred: dict[str, torch.Tensor], target: torch.Tensor, max_error: float) -> dict[str, np.ndarray]:
@@ -60,29 +46,15 @@ def render_pictures(pred: dict[str, torch.Tensor], target: torch.Tensor, max_err
     }
 
 
-def publish_picture(trainer: L.Trainer, key: str, picture: np.ndarray, file_name: str, caption: str | None = None,
-                    log: bool = True, save: bool = True) -> None:
-    """Sends a picture [H, W, 3] to every logger that takes images (W&B: `key`, at the trainer's step) and, on global
-    rank 0, writes it to `<trainer.default_root_dir>/val/<file_name>`."""
-    if log:
-        for logger in trainer.loggers:
-            log_image = getattr(logger, "log_image", None)
-            if log_image is not None:
-                extra = {} if caption is None else {"caption": [caption]}
-                log_image(key=key, images=[picture], step=trainer.global_step, **extra)
-    if save and trainer.is_global_zero:
-        out = Path(trainer.default_root_dir) / "val"
-        out.mkdir(parents=True, exist_ok=True)
-        write_png(out / file_name, picture)
-
-
 class ValidationRenders(L.Callback):
     """Pictures of the validation frame at every validation: predicted RGB, colourised depth (inverse depth, near =
     warm), accumulation (grey) and |pred - gt| (with the frame's PSNR in the caption).
 
     Logged to every logger that has `log_image` (W&B: keys `val/render_<kind>`, slider over steps) and saved as
     `<trainer.default_root_dir>/val/step{global_step:06d}_<kind>.png`. Only the first validation frame is drawn;
-    sanity-check runs are skipped.
+    sanity-check runs are skipped. At every validation it also logs SimpleNeRF's reliability masks on the first train
+    view (`val/mask_<name>/{plus,minus,zero}` and a picture `val/mask_<name>`, saved as `mask_<name>_stepNNNNNN.png`;
+    black: the other depth is preferred, white: the main one, grey: neither).
     """
 
     def __init__(
@@ -112,13 +84,24 @@ class ValidationRenders(L.Callback):
             return
         if (self.validations - 1) % self.every_n_validations != 0:
             return
-        target = batch["rgb"].reshape(outputs["rgb"].shape)
+        target = batch.rgb.reshape(outputs["rgb"].shape)
         pictures = render_pictures(outputs, target, self.max_error)
         frame_psnr = float(psnr(outputs["rgb"][None].detach(), target[None])[0])
         step = trainer.global_step
-        name = batch.get("name", "val")
+        name = batch.name
         captions = {kind: f"{name} step {step}" for kind in KINDS}
         captions["error"] = f"{name} step {step} PSNR {frame_psnr:.2f} dB"
         for kind in KINDS:
             publish_picture(trainer, f"val/render_{kind}", pictures[kind], f"step{step:06d}_{kind}.png",
                             captions[kind], log=self.log_images, save=self.save_to_disk)
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        """The reliability masks on the first train view: fractions of +1 / -1 / 0 and a picture per mask."""
+        if trainer.sanity_checking or getattr(pl_module, "train_views", None) is None:
+            return
+        for name, m in pl_module.reliability_maps(view=0).items():
+            pl_module.log_dict({f"val/mask_{name}/{k}": v for k, v in mask_fractions(m).items()}, sync_dist=True)
+            if trainer.is_global_zero:  # every rank computed the same maps; one writes them
+                file_name = f"mask_{name}_step{trainer.global_step:06d}.png"
+                publish_picture(trainer, f"val/mask_{name}", mask_picture(m), file_name, log=self.log_images,
+                                save=self.save_to_disk)

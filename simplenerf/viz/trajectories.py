@@ -12,8 +12,9 @@ from typing import Literal
 import numpy as np
 import torch
 
-from simplenerf.data.datasets import Views
-from simplenerf.data.llff import LLFFScene, average_pose
+from simplenerf.data.llff import average_pose
+from simplenerf.data.scene import Scene
+from simplenerf.geometry.views import Views
 
 TrajectoryKind = Literal["spiral", "recorded"]
 
@@ -30,37 +31,37 @@ def spiral_focus_depth(bounds: np.ndarray, dt: float = 0.75) -> float:
 
 
 def llff_spiral(
-    c2w_train: torch.Tensor, bounds: np.ndarray | torch.Tensor, n_frames: int = 120, n_rotations: float = 2,
+    c2w: torch.Tensor, bounds: np.ndarray | torch.Tensor, n_frames: int = 120, n_rotations: float = 2,
     zrate: float = 0.5,
 ) -> torch.Tensor:
-    """The standard LLFF / NeRF video path, in this package's OpenGL axes.
+    """The standard LLFF / NeRF video path, in this package's OpenGL axes, fitted to a set of camera poses.
 
-    The camera centre moves on an ellipse-like spiral around the average train pose (`data.llff.average_pose`):
-    in that pose's frame, offset(theta) = [r_x cos theta, -r_y sin theta, -r_z sin(zrate theta)] for
+    The camera centre moves on an ellipse-like spiral around the average pose (`data.llff.average_pose`): in that
+    pose's frame, offset(theta) = [r_x cos theta, -r_y sin theta, -r_z sin(zrate theta)] for
     theta = 2 pi n_rotations i / n_frames, i = 0 .. n_frames - 1 (the start frame is not repeated at the end), with
-    radii r = the 90th percentile of |train camera position - average centre| per axis of that frame. Every camera
-    looks at the point `spiral_focus_depth(bounds)` in front of the average pose (along its -z) and keeps the mean
-    train up vector as up.
+    radii r = the 90th percentile of |camera position - average centre| per axis of that frame. Every camera looks at
+    the point `spiral_focus_depth(bounds)` in front of the average pose (along its -z) and keeps the mean up vector as
+    up. The authors' release fits the path to all frames of the scene (`scene_trajectory`).
 
     Args:
-        c2w_train: [V, 3, 4] train camera poses.
-        bounds: [V, 2] near/far depth of each train view, scene units.
+        c2w: [V, 3, 4] the camera poses the path is fitted to.
+        bounds: [V, 2] near/far depth of each of those views, scene units.
         n_frames: number of poses.
         n_rotations: turns around the centre.
         zrate: the forward/backward motion turns `zrate` times per turn in the image plane.
 
     Returns:
-        [n_frames, 3, 4] poses, dtype and device of c2w_train.
+        [n_frames, 3, 4] poses, dtype and device of c2w.
     """
-    if c2w_train.ndim != 3 or c2w_train.shape[1:] != (3, 4):
-        raise ValueError(f"c2w_train must be [V, 3, 4], got {tuple(c2w_train.shape)}")
+    if c2w.ndim != 3 or c2w.shape[1:] != (3, 4):
+        raise ValueError(f"c2w must be [V, 3, 4], got {tuple(c2w.shape)}")
     b = bounds.detach().cpu().double().numpy() if isinstance(bounds, torch.Tensor) else np.asarray(bounds, np.float64)
-    if b.shape != (c2w_train.shape[0], 2) or not (b > 0).all():
-        raise ValueError(f"bounds must be [{c2w_train.shape[0]}, 2] positive near/far depths, got {b.shape}")
+    if b.shape != (c2w.shape[0], 2) or not (b > 0).all():
+        raise ValueError(f"bounds must be [{c2w.shape[0]}, 2] positive near/far depths, got {b.shape}")
     if n_frames < 1:
         raise ValueError(f"n_frames must be at least 1, got {n_frames}")
 
-    poses = c2w_train.detach().cpu().double().numpy()
+    poses = c2w.detach().cpu().double().numpy()
     centre_pose = average_pose(poses)
     rotation, centre = centre_pose[:, :3], centre_pose[:, 3]
     up = _normalize(poses[:, :, 1].sum(0))
@@ -74,8 +75,8 @@ def llff_spiral(
     back = _normalize(positions - focus)  # the camera looks along -back, i.e. at the focus point
     right = _normalize(np.cross(up, back))
     cam_up = np.cross(back, right)
-    c2w = np.stack([right, cam_up, back, positions], axis=-1)  # [N, 3, 4]
-    return torch.from_numpy(c2w).to(dtype=c2w_train.dtype, device=c2w_train.device)
+    path = np.stack([right, cam_up, back, positions], axis=-1)  # [N, 3, 4]
+    return torch.from_numpy(path).to(dtype=c2w.dtype, device=c2w.device)
 
 
 def recorded_trajectory(views: Views) -> torch.Tensor:
@@ -84,13 +85,18 @@ def recorded_trajectory(views: Views) -> torch.Tensor:
 
 
 def scene_trajectory(
-    scene: LLFFScene, kind: TrajectoryKind, n_frames: int = 120, n_rotations: float = 2
+    scene: Scene, kind: TrajectoryKind, n_frames: int = 120, n_rotations: float = 2
 ) -> torch.Tensor:
-    """The video path of a scene: the spiral around its train views (SPEC 6: bounds of the train frames only) or
-    the recorded path of all its frames (n_frames and n_rotations are then unused). Returns c2w [N, 3, 4]."""
+    """The video path of a scene: the spiral fitted to ALL its frames' poses and bounds, or the recorded path of all
+    its frames (n_frames and n_rotations are then unused). Returns c2w [N, 3, 4].
+
+    The spiral follows the authors' release, which fits it to every frame of the scene, train and test: with 2 train
+    views the 90th-percentile radii of the train poses alone are those of the two cameras, so the path would shrink
+    to (nearly) a line between them. A scene of one's own photos without other frames has only its train views,
+    which are then all there is to fit to.
+    """
     if kind == "spiral":
-        train = scene.split.train
-        return llff_spiral(scene.views.c2w[train], scene.bounds[train], n_frames, n_rotations)
+        return llff_spiral(scene.views.c2w, scene.bounds, n_frames, n_rotations)
     if kind == "recorded":
         return recorded_trajectory(scene.views)
     raise ValueError(f"unknown trajectory {kind!r}: expected 'spiral' or 'recorded'")

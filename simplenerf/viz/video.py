@@ -1,4 +1,6 @@
-"""Videos of a trained NeRF along a camera path: [RGB | colourised depth] side by side, one mp4 (mp4v).
+"""Videos of a trained NeRF along a camera path: [RGB | colourised depth] side by side, one mp4 (H.264).
+
+The mp4 holds H.264 (libx264, yuv420p, moov atom first), which browsers and W&B play; PyAV's wheels ship libx264.
 
 Frames are encoded as they are rendered (only the few frames that fix the depth colour range are held back), and
 the file is written under `<name>.partial.mp4` and renamed when complete, so an interrupted render never leaves a
@@ -9,22 +11,25 @@ same depth in every frame; pass the range printed for one video to another to co
 from __future__ import annotations
 
 import os
+from fractions import Fraction
 from pathlib import Path
 
-import cv2
+import av
+import lightning as L
 import numpy as np
 import torch
 from tqdm import tqdm
 
-from simplenerf.evaluation.evaluator import colorize_depth
 from simplenerf.geometry.rays import RayBundle, make_rays, pixel_grid
 from simplenerf.model.nerf import NeRF
+from simplenerf.viz.pictures import colorize_depth
+from simplenerf.viz.trajectories import TrajectoryKind, scene_trajectory
 
 
 def frame_rays(c2w: torch.Tensor, intrinsics: torch.Tensor, height: int, width: int, near: float) -> RayBundle:
     """Rays of every pixel of one camera, row-major (as `data.datasets.Frames`): c2w [3, 4], intrinsics [3, 3]."""
     uv = pixel_grid(height, width, c2w.device)
-    return RayBundle.from_batch(make_rays(intrinsics[None], c2w[None], uv, width, height, near))
+    return make_rays(intrinsics[None], c2w[None], uv, width, height, near)
 
 
 def downscale_intrinsics(
@@ -58,8 +63,39 @@ def compose_frame(rgb: np.ndarray, depth: np.ndarray, depth_range: tuple[float, 
 
 
 def partial_path(out_path: Path) -> Path:
-    """Where a video is written before it is complete; keeps the suffix, from which OpenCV picks the container."""
+    """Where a video is written before it is complete; keeps the suffix, from which FFmpeg picks the container."""
     return out_path.with_name(f"{out_path.stem}.partial{out_path.suffix}")
+
+
+class H264Writer:
+    """Writes 8-bit RGB frames [H, W, 3] (even H and W) to an mp4 as H.264, yuv420p, with the index at the front
+    (`+faststart`) so a browser starts playing before the whole file has loaded."""
+
+    def __init__(self, path: Path, width: int, height: int, fps: float, crf: int = 18) -> None:
+        try:
+            self.container = av.open(str(path), mode="w", container_options={"movflags": "+faststart"})
+        except (ValueError, av.FFmpegError) as e:
+            raise OSError(f"cannot open an H.264 video writer for {path} ({width}x{height} at {fps} fps): {e}") from e
+        self.stream = self.container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
+        self.stream.width, self.stream.height, self.stream.pix_fmt = width, height, "yuv420p"
+        self.stream.options = {"crf": str(crf)}
+
+    def write(self, rgb: np.ndarray) -> None:
+        for packet in self.stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")):
+            self.container.mux(packet)
+
+    def close(self) -> None:
+        """Flushes the encoder and finishes the file."""
+        for packet in self.stream.encode():
+            self.container.mux(packet)
+        self.container.close()
+
+    def abort(self) -> None:
+        """Closes the file without flushing (it is about to be deleted)."""
+        try:
+            self.container.close()
+        except av.FFmpegError:
+            pass
 
 
 def render_video(
@@ -102,10 +138,7 @@ def render_video(
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     partial = partial_path(out_path)
-    size = (2 * width, height + height % 2)
-    writer = cv2.VideoWriter(str(partial), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
-    if not writer.isOpened():
-        raise OSError(f"cannot open an mp4v video writer for {partial} ({size[0]}x{size[1]} at {fps} fps)")
+    writer = H264Writer(partial, 2 * width, height + height % 2, fps)
 
     held: list[tuple[np.ndarray, np.ndarray]] = []  # frames rendered before the depth range is known
     n_held = min(range_frames, len(c2w))
@@ -121,17 +154,80 @@ def render_video(
                     continue
                 depth_range = depth_colour_range([depth for _, depth in held])
             for rgb, depth in held:
-                writer.write(cv2.cvtColor(compose_frame(rgb, depth, depth_range), cv2.COLOR_RGB2BGR))
+                writer.write(compose_frame(rgb, depth, depth_range))
             held.clear()
-        writer.release()
+        writer.close()
         if not partial.is_file() or partial.stat().st_size == 0:
             raise OSError(f"the video writer produced no data in {partial}")
         os.replace(partial, out_path)
     except BaseException:
-        writer.release()
+        writer.abort()
         partial.unlink(missing_ok=True)
         raise
     finally:
         nerf.train(was_training)
     assert depth_range is not None
     return out_path, depth_range
+
+
+def render_scene_video(
+    model: L.LightningModule,
+    datamodule: L.LightningDataModule,
+    out_path: str | Path,
+    kind: TrajectoryKind | None = None,
+    frames: int = 120,
+    rotations: float = 2,
+    factor_down: int = 1,
+    fps: float = 30,
+    depth_range: tuple[float, float] | None = None,
+) -> tuple[Path, int, int, int, TrajectoryKind, tuple[float, float]]:
+    """The video of a trained module (its `nerf`, `hparams.chunk`) along its data module's camera path: the spiral
+    around the train views (`kind` "spiral") or the scene's recorded path ("recorded"); None: the data module's
+    `video_trajectory` attribute, else the spiral. Rendered at 1/`factor_down` of the data's resolution with the first
+    train view's intrinsics.
+
+    Returns:
+        The written path, the number of frames, the width and height of each half, the path kind and the depth range.
+    """
+    kind = kind or getattr(datamodule, "video_trajectory", "spiral")
+    scene = datamodule.scene
+    c2w = scene_trajectory(scene, kind, frames, rotations)
+    intrinsics, height, width = downscale_intrinsics(
+        scene.views.intrinsics[scene.split.train[0]], scene.views.height, scene.views.width, factor_down
+    )
+    written, used_range = render_video(model.nerf, c2w, intrinsics, height, width, datamodule.near,
+                                       model.hparams.chunk, out_path, fps, depth_range)
+    return written, len(c2w), width, height, kind, used_range
+
+
+class TrainingVideo(L.Callback):
+    """At the end of `fit`, the video of the trained model ([RGB | depth] along the scene's camera path, as
+    tools/render_video.py) in `<trainer.default_root_dir>/video_<path>.mp4`, logged to every logger that takes
+    videos (W&B: the media panel `video/<path>`). Rendered by global rank 0; off unless `frames` > 0."""
+
+    def __init__(self, frames: int = 0, rotations: float = 2, factor_down: int = 1, fps: float = 30,
+                 trajectory: TrajectoryKind | None = None) -> None:
+        """
+        Args:
+            frames: frames of the spiral (the recorded path has its own); 0: no video.
+            rotations: turns of the spiral.
+            factor_down: render at 1/N of the data's resolution (a full-resolution video on a CPU takes long).
+            fps: frames per second.
+            trajectory: spiral or recorded; null: the data module's choice (RealEstate: recorded, else spiral).
+        """
+        self.frames, self.rotations, self.factor_down, self.fps = frames, rotations, factor_down, fps
+        self.trajectory = trajectory
+
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if self.frames <= 0 or not trainer.is_global_zero:
+            return
+        kind = self.trajectory or getattr(trainer.datamodule, "video_trajectory", "spiral")
+        out = Path(trainer.default_root_dir) / f"video_{kind}.mp4"
+        written, n, width, height, kind, _ = render_scene_video(
+            pl_module, trainer.datamodule, out, kind, self.frames, self.rotations, self.factor_down, self.fps
+        )
+        for logger in trainer.loggers:
+            log_video = getattr(logger, "log_video", None)
+            if log_video is not None:
+                log_video(key=f"video/{kind}", videos=[str(written)], step=trainer.global_step, format=["mp4"])
+        print(f"video: {written} ({n} frames of {2 * width}x{height}, {kind})", flush=True)

@@ -63,7 +63,7 @@ def test_synthetic_rays_hit_the_known_depth(synthetic_scene):
     v, u = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
     uv = torch.stack([u.flatten(), v.flatten()], -1)
     batch = views.rays(torch.full((h * w,), a), uv, near=1.0)
-    points = batch["origins"] + views.depths[a].reshape(-1, 1) * batch["directions"]
+    points = batch.origins + views.depths[a].reshape(-1, 1) * batch.directions
     uv_b, z_b = project(points, views.intrinsics[b : b + 1], views.c2w[b : b + 1])
     # Inverse depth is affine in image coordinates on a plane, so bilinear interpolation of view b's inverse depth
     # is exact wherever the 4 neighbouring pixels see the same plane.
@@ -84,7 +84,7 @@ def test_ndc_samples_recover_the_exact_depth(synthetic_scene):
     scene = load_llff_scene(synthetic_scene, factor=1, n_views=2)
     views = scene.views
     uv = torch.tensor([[5, 5], [30, 20], [60, 40]])
-    rays = RayBundle.from_batch(views.rays(torch.zeros(3, dtype=torch.long), uv, near=1.0))
+    rays = views.rays(torch.zeros(3, dtype=torch.long), uv, near=1.0)
     depth = views.depths[0][uv[:, 1], uv[:, 0]]
     # The NDC t of the surface, mapped back, is the exact depth.
     world_z = rays.origins[:, 2] + depth * rays.directions[:, 2]
@@ -98,10 +98,11 @@ def test_training_batches_are_consistent_with_images(synthetic_scene):
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
     train = dm.train_views
-    assert batch["rgb"].shape == (100, 3)
-    assert torch.equal(batch["rgb"], train.images[batch["view"], batch["uv"][:, 1], batch["uv"][:, 0]])
+    rays = batch.random
+    assert rays.rgb.shape == (100, 3) and batch.sparse is None
+    assert torch.equal(rays.rgb, train.images[rays.view, rays.uv[:, 1], rays.uv[:, 0]])
     frame = dm.test_dataloader().dataset[0]
-    assert frame["rgb"].shape == (48 * 64, 3) and frame["depth"].shape == (48 * 64,)
+    assert frame.rgb.shape == (48 * 64, 3) and frame.depth.shape == (48 * 64,)
 
 
 def copy_scene(src, dst):
@@ -159,15 +160,15 @@ def test_sparse_depth_rays_carry_sfm_depth(tmp_path):
                              rays_per_batch=64, sparse_rays_per_batch=256, sparse_depth_cache=str(tmp_path / "cache"))
     dm.setup("fit")
     batch = next(iter(dm.train_dataloader()))
-    assert batch["rgb"].shape == (64, 3) and batch["sparse_depth"].shape == (256,)
-    assert torch.equal(batch["sparse_weight"], torch.ones(256))  # DS-NeRF weighting is off by default
+    sparse = batch.sparse
+    assert batch.random.rgb.shape == (64, 3) and sparse.depth.shape == (256,)
+    assert torch.equal(sparse.weight, torch.ones(256))  # DS-NeRF weighting is off by default
     train = dm.train_views
     pix = torch.round(dm.sparse_depth.uv).long()
     exact = train.depths[dm.sparse_depth.view, pix[:, 1], pix[:, 0]]
     assert (dm.sparse_depth.depth / exact - 1).abs().median() < 0.01
     # The ray of a sparse sample at its SfM depth is the 3D point: it projects back onto its keypoint.
-    points = batch["sparse_origins"] + batch["sparse_depth"][:, None] * batch["sparse_directions"]
-    view = batch["sparse_view"]
-    uv, z = project(points, train.intrinsics[view], train.c2w[view])
-    assert torch.allclose(z, batch["sparse_depth"], rtol=1e-5)
+    points = sparse.rays.origins + sparse.depth[:, None] * sparse.rays.directions
+    uv, z = project(points, train.intrinsics[sparse.view], train.c2w[sparse.view])
+    assert torch.allclose(z, sparse.depth, rtol=1e-5)
     assert list((tmp_path / "cache").glob("*.json")), "sparse depth was not cached"

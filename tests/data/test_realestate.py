@@ -20,7 +20,7 @@ from simplenerf.data.realestate import (
 from simplenerf.errors import DataError
 from simplenerf.geometry.rays import pixel_rays, project
 from tests.conftest import require_shared
-from tests.test_cli import SMALL, run, tiny_augmentations
+from tests.test_cli import SMALL, run, tiny_model
 
 SCENE = "data/realestate10k/000c3ab189999a83"
 
@@ -223,7 +223,7 @@ def test_project_scene_fits_through_the_cli(tmp_path):
     scene_dir = require_shared(SCENE)
     out = str(tmp_path / "run")
     run(
-        "fit", "--config", "configs/realestate.yaml", "--config", str(tiny_augmentations(tmp_path)), *SMALL,
+        "fit", "--config", "configs/realestate.yaml", "--config", str(tiny_model(tmp_path)), *SMALL,
         "--data.init_args.scene_dir", str(scene_dir), "--data.init_args.sparse_depth_cache", str(tmp_path / "cache"),
         "--trainer.default_root_dir", out, "--trainer.logger.init_args.save_dir", out, "--trainer.max_steps", "3",
     )

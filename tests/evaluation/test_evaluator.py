@@ -13,7 +13,6 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
-from tests.test_metrics import lpips_weights
 
 from simplenerf.data.llff import LLFFDataModule, load_llff_scene
 from simplenerf.errors import DataError
@@ -31,6 +30,7 @@ from simplenerf.evaluation.evaluator import (
 from simplenerf.evaluation.metrics import PSNR_CAP
 from simplenerf.evaluation.visibility import scene_visibility_masks
 from tests.conftest import REPO, shared_dir
+from tests.evaluation.test_metrics import lpips_weights
 from tests.test_cli import run, run_args
 
 SUMMARY_KEYS = ["scene", "n_views", "frames", *ALL_METRICS, "checkpoint", "git_commit", "config"]

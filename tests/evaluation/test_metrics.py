@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.ndimage
 import scipy.stats
 import torch
 
@@ -22,9 +23,11 @@ from simplenerf.evaluation.metrics import (
     evaluate_frame,
     fill_unmasked,
     frame_scores,
+    masked_ssim,
     psnr,
     quantize_8bit,
     ssim,
+    ssim_map,
 )
 from tests.conftest import require_shared
 
@@ -127,6 +130,70 @@ def test_ssim_rejects_small_images() -> None:
         ssim(torch.rand(1, 10, 20, 3), torch.rand(1, 10, 20, 3))
 
 
+def _ssim_map_reference(pred: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """skimage's full SSIM map of 8-bit images [H, W, 3], written with scipy: per channel, gaussian_filter with sigma
+    1.5, truncate 3.5 and mode 'reflect' for the local statistics, population covariance, data range 255."""
+    x_all = np.round(np.clip(pred, 0, 1) * 255).astype(np.float64)
+    y_all = np.round(np.clip(target, 0, 1) * 255).astype(np.float64)
+    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
+    channels = []
+    for c in range(3):
+        x, y = x_all[..., c], y_all[..., c]
+
+        def blur(a: np.ndarray) -> np.ndarray:
+            return scipy.ndimage.gaussian_filter(a, sigma=1.5, truncate=3.5, mode="reflect")
+
+        mx, my = blur(x), blur(y)
+        vx, vy, cxy = blur(x * x) - mx * mx, blur(y * y) - my * my, blur(x * y) - mx * my
+        channels.append(((2 * mx * my + c1) * (2 * cxy + c2)) / ((mx**2 + my**2 + c1) * (vx + vy + c2)))
+    return np.stack(channels, axis=-1)
+
+
+def _random_pair(seed: int, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A random target, a noisy prediction (8-bit levels / 255, float64) and a random mask of [h, w]."""
+    rng = np.random.default_rng(seed)
+    target = rng.integers(0, 256, size=(h, w, 3)) / 255.0
+    pred = np.clip(target + rng.normal(0.0, 0.15, size=(h, w, 3)), 0.0, 1.0)
+    return pred, target, rng.random((h, w)) > 0.4
+
+
+@pytest.mark.parametrize("size", [(11, 11), (19, 30), (33, 14)])
+def test_ssim_map_matches_scipy_reference_including_borders(size) -> None:
+    pred, target, _ = _random_pair(7, *size)
+    got = ssim_map(torch.from_numpy(pred)[None], torch.from_numpy(target)[None])[0].numpy()
+    assert got.shape == (*size, 3)
+    np.testing.assert_allclose(got, _ssim_map_reference(pred, target), rtol=0.0, atol=1e-12)
+    # The scalar SSIM is the mean of the map without its 5-pixel border (skimage's crop).
+    full = ssim(torch.from_numpy(pred)[None], torch.from_numpy(target)[None]).item()
+    assert full == pytest.approx(_ssim_map_reference(pred, target)[5:-5, 5:-5].mean(), abs=1e-12)
+
+
+def test_masked_ssim_is_the_map_of_the_filled_prediction_averaged_over_the_mask() -> None:
+    pred, target, mask = _random_pair(8, 24, 29)
+    filled = np.where(mask[..., None], pred, target)
+    expected = _ssim_map_reference(filled, target)[mask].mean()
+    t = [torch.from_numpy(a)[None] for a in (pred, target, mask)]
+    assert masked_ssim(*t).item() == pytest.approx(expected, abs=1e-12)
+    unfilled = _ssim_map_reference(pred, target)[mask].mean()
+    assert masked_ssim(*t, fill=False).item() == pytest.approx(unfilled, abs=1e-12)
+    assert masked_ssim(*t).item() > unfilled  # windows across the mask's edge see the ground truth outside
+    # A full mask averages the whole map, border included, so it differs from the cropped scalar SSIM.
+    everywhere = torch.ones(1, 24, 29, dtype=torch.bool)
+    assert masked_ssim(t[0], t[1], everywhere).item() == pytest.approx(_ssim_map_reference(pred, target).mean())
+    assert math.isnan(masked_ssim(t[0], t[1], torch.zeros(1, 24, 29, dtype=torch.bool)).item())
+
+
+def test_ssim_map_border_mirrors_the_edge_pixel() -> None:
+    # Columns 0..10 of a ramp image: mirroring repeats column 0 (scipy 'reflect'), so the map of an image and of its
+    # left-right flip are each other's flips, and a constant image has a map of exactly 1 at its borders too.
+    pred, target, _ = _random_pair(9, 12, 15)
+    a = ssim_map(torch.from_numpy(pred)[None], torch.from_numpy(target)[None])[0]
+    b = ssim_map(torch.from_numpy(pred[:, ::-1].copy())[None], torch.from_numpy(target[:, ::-1].copy())[None])[0]
+    torch.testing.assert_close(b, a.flip(1), rtol=0.0, atol=1e-12)
+    flat = torch.full((1, 12, 12, 3), 0.5, dtype=torch.float64)
+    assert torch.equal(ssim_map(flat, flat), torch.ones(1, 12, 12, 3, dtype=torch.float64))
+
+
 def test_fill_unmasked() -> None:
     pred = torch.arange(12.0).reshape(2, 2, 3)
     target = -torch.ones(2, 2, 3)
@@ -140,7 +207,9 @@ def test_depth_mae_hand_values() -> None:
     pred = torch.tensor([[1.0, 2.0], [3.0, 6.0]])
     assert depth_mae(pred, gt).item() == pytest.approx(0.5 / 2.5)  # even count: median averages 2 and 3
     mask = torch.tensor([[True, True], [False, True]])
-    assert depth_mae(pred, gt, mask).item() == pytest.approx((2 / 3) / 2.0)
+    # Masked: the mean over the 3 masked pixels, (0 + 0 + 2) / 3, over the WHOLE frame's median 2.5 (not the
+    # masked pixels' median 2).
+    assert depth_mae(pred, gt, mask).item() == pytest.approx((2 / 3) / 2.5)
 
 
 def test_depth_srocc_hand_values() -> None:
@@ -160,7 +229,7 @@ def test_depth_metrics_match_scipy_with_ties_and_mask() -> None:
     got = depth_srocc(torch.from_numpy(pred), torch.from_numpy(gt), torch.from_numpy(mask)).item()
     assert got == pytest.approx(scipy.stats.spearmanr(pred[mask], gt[mask]).statistic, abs=1e-12)
     mae = depth_mae(torch.from_numpy(pred), torch.from_numpy(gt), torch.from_numpy(mask)).item()
-    assert mae == pytest.approx(np.mean(np.abs(gt[mask] - pred[mask])) / np.median(gt[mask]), abs=1e-12)
+    assert mae == pytest.approx(np.mean(np.abs(gt[mask] - pred[mask])) / np.median(gt), abs=1e-12)
 
 
 def test_evaluate_frame() -> None:
@@ -178,7 +247,7 @@ def test_evaluate_frame() -> None:
     assert masked.psnr == PSNR_CAP
     assert masked.ssim == pytest.approx(1.0, abs=1e-12)
     assert masked.lpips == 0.0
-    assert masked.depth_mae == pytest.approx(depth[mask].mean().item() / depth[mask].median().item(), rel=1e-2)
+    assert masked.depth_mae == pytest.approx(depth[mask].mean().item() / np.median(depth.numpy()), rel=1e-6)
     assert masked.depth_srocc == pytest.approx(1.0)
 
     full = evaluate_frame(pred, gt)

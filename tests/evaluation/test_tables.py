@@ -1,6 +1,7 @@
 import csv
 import json
 import re
+import shutil
 import subprocess
 import sys
 
@@ -8,7 +9,7 @@ import pytest
 
 from simplenerf.errors import DataError
 from simplenerf.evaluation import paper_scores
-from simplenerf.evaluation.tables import expand_runs, load_records, main, mean_rows
+from simplenerf.evaluation.tables import KEYS, RELEASE_MODEL, expand_runs, load_records, main, mean_rows
 from tests.conftest import REPO, require_shared
 
 # (model, scene, views) -> masked LPIPS, SSIM, PSNR, full-frame LPIPS, SSIM, PSNR, masked depth MAE, SROCC.
@@ -32,13 +33,23 @@ HEADER_2_3_4 = [
 ]
 
 
-def write_run(folder, scene, n_views, values, **extra):
-    """A run folder with test/summary.json in the shared format (no full-frame depth: no reference depth)."""
-    summary = {"scene": scene, "n_views": n_views, "frames": 3, "depth_mae": None, "depth_srocc": None,
-               **dict(zip(FIELDS, values, strict=True)), "checkpoint": None, "git_commit": None, "config": None,
-               **extra}
+def write_run(folder, scene, n_views, values, frames=None, **extra):
+    """A run folder with test/summary.json and test/metrics.csv in the shared format (no full-frame depth: no reference
+    depth). Without `frames` (key -> one score per frame), its 3 frames all score `values`."""
+    scores = {"depth_mae": None, "depth_srocc": None, **dict(zip(FIELDS, values or (), strict=values is not None)),
+              **extra}
+    frames = frames or {key: [value] * 3 for key, value in scores.items()}
+    count = len(next(iter(frames.values())))
+    summary = {"scene": scene, "n_views": n_views, "frames": count, **scores, "checkpoint": None, "git_commit": None,
+               "config": None}
     (folder / "test").mkdir(parents=True)
     (folder / "test" / "summary.json").write_text(json.dumps(summary))
+    with open(folder / "test" / "metrics.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=["frame", "index", *KEYS])
+        writer.writeheader()
+        for i in range(count):
+            writer.writerow({"frame": f"{8 * i:03d}", "index": 8 * i,
+                             **{key: frames.get(key, [None] * count)[i] for key in KEYS}})
     return folder
 
 
@@ -104,17 +115,15 @@ def test_csv_long_format(runs, tmp_path, capsys):
     main([*args_for(runs), "--scores", "both", "--csv", str(tmp_path / "out" / "table.csv")])
     with open(tmp_path / "out" / "table.csv", newline="") as f:
         lines = list(csv.reader(f))
-    assert lines[0] == ["table", "model", "source", "n_views", "metric", "value", "scenes"]
-    assert lines[1] == ["mean", "SimpleNeRF", "measured", "2", "masked_lpips", "0.375", "fern;horns"]
-    assert lines[2] == ["mean", "SimpleNeRF", "measured", "2", "lpips", "0.5", "fern;horns"]
-    assert ["mean", "DS-NeRF", "measured", "3", "psnr", "17.5", "fern;horns"] in lines
+    assert lines[0] == ["table", "model", "source", "n_views", "metric", "value", "scenes", "frames"]
+    assert lines[1] == ["mean", "SimpleNeRF", "measured", "2", "masked_lpips", "0.375", "fern;horns", "6"]
+    assert lines[2] == ["mean", "SimpleNeRF", "measured", "2", "lpips", "0.5", "fern;horns", "6"]
+    assert ["mean", "DS-NeRF", "measured", "3", "psnr", "17.5", "fern;horns", "6"] in lines
     assert len(lines) == 1 + 2 * 2 * 6  # models x views x (3 metrics, masked and full)
 
 
 def test_unequal_scene_sets_warn_and_name_the_missing_runs(runs, capsys):
-    (runs / "DS-NeRF" / "horns_3v" / "test" / "summary.json").unlink()
-    (runs / "DS-NeRF" / "horns_3v" / "test").rmdir()
-    (runs / "DS-NeRF" / "horns_3v").rmdir()
+    shutil.rmtree(runs / "DS-NeRF" / "horns_3v")
     main(args_for(runs))
     out, err = capsys.readouterr()
     assert err.splitlines() == [
@@ -130,7 +139,28 @@ def test_scene_without_masks_leaves_the_masked_mean_out(tmp_path, capsys):
     out, err = capsys.readouterr()
     assert table_lines(out)[3] == "| SimpleNeRF | - | - | - |"
     assert err == (f"warning: SimpleNeRF, 2 views: horns has no masked_lpips, masked_ssim, masked_psnr "
-                   f"({tmp_path}/b/test/summary.json), so those means are left out\n")
+                   f"({tmp_path}/b/test/metrics.csv), so those means are left out\n")
+
+
+def test_means_run_over_all_frames_not_over_scene_means(tmp_path, capsys):
+    """fern: 1 frame of PSNR 20; horns: 3 frames of PSNR 22, 23, 27. The frame mean (20 + 22 + 23 + 27) / 4 = 23 is
+    the table's (the paper's averaging); the mean of the scene means (20 + 24) / 2 = 22 is not. A frame without a
+    score (horns' second frame has no masked SSIM: an empty mask) is left out of that score's mean only."""
+    full = {key: [0.5] for key in FIELDS}
+    write_run(tmp_path / "a", "fern", 2, None, frames={**full, "psnr": [20.0], "masked_ssim": [0.25]})
+    three = {key: [0.5] * 3 for key in FIELDS}
+    write_run(tmp_path / "b", "horns", 2, None, frames={**three, "psnr": [22.0, 23.0, 27.0],
+                                                         "masked_ssim": [0.5, None, 0.75]})
+    records = load_records(expand_runs([f"A={tmp_path}/a", f"A={tmp_path}/b"]))
+    assert [r.scores["psnr"] for r in records] == [20.0, 24.0]  # scene means
+    row = mean_rows(records)[0]
+    assert row.values[(2, "psnr")] == 23.0 and row.frames[(2, "psnr")] == 4
+    assert row.values[(2, "masked_ssim")] == 0.5 and row.frames[(2, "masked_ssim")] == 3  # (0.25 + 0.5 + 0.75) / 3
+    main([f"A={tmp_path}/a", f"A={tmp_path}/b", "--scores", "full"])
+    assert table_lines(capsys.readouterr().out)[3] == "| A | 0.5000 | 0.5000 | 23.00 |"
+    main([f"A={tmp_path}/a", f"A={tmp_path}/b", "--scores", "full", "--per-scene"])
+    out = capsys.readouterr().out
+    assert table_lines(out.split("### horns")[1])[3] == "| A | 0.5000 | 0.5000 | 24.00 |"
 
 
 def test_per_scene_tables(runs, capsys):
@@ -208,6 +238,17 @@ def test_errors_say_what_to_do(tmp_path, capsys):
         load_records([("A", tmp_path / "old")])
     with pytest.raises(DataError, match="expected NAME=RUN_DIR"):
         expand_runs(["runs/fern"])
+    (tmp_path / "old" / "test" / "summary.json").write_text(json.dumps({"scene": "fern", "n_views": 2}))
+    (tmp_path / "old" / "test" / "metrics.csv").unlink()
+    with pytest.raises(DataError, match=r"old/test/metrics.csv not found: the table averages the frames"):
+        load_records([("A", tmp_path / "old")])
+    release = tmp_path / "test2011"
+    (release / "QA_Scores" / "predicted_frames").mkdir(parents=True)
+    csv_file = release / "QA_Scores" / "predicted_frames" / "PSNR02_FrameWise.csv"
+    csv_file.write_text("scene_name,pred_frame_num,PSNR02\nfern,0,20.0\n")
+    with pytest.raises(DataError, match=r"test2011: how many train views\? .* name it as .*test2011@N"):
+        load_records(expand_runs([str(release)]))
+    assert load_records(expand_runs([f"{release}@3"]))[0].n_views == 3
     with pytest.raises(DataError, match="no run folder matches"):
         expand_runs([f"A={tmp_path}/nothing_*"])
     write_run(tmp_path / "x", "fern", 2, RUNS[("SimpleNeRF", "fern", 2)])
@@ -234,3 +275,56 @@ def test_the_tool_runs(runs):
     assert "| SimpleNeRF | 0.3750 | 0.6250 | 20.50 | 0.1875 | 0.7500 | 22.50 |" in done.stdout
     failed = subprocess.run([*tool, f"A={runs}/none"], capture_output=True, text=True)
     assert failed.returncode == 2 and failed.stderr.startswith("results_table: error: ")
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# The authors' per-frame scores (../shared/reference_scores).
+
+RELEASE_FOLDERS = ("test1011", "test1021", "test1031", "test0011", "test0021", "test0031")
+
+
+@pytest.mark.parametrize("folder", RELEASE_FOLDERS)
+def test_the_release_frame_scores_average_to_its_published_table_values(folder):
+    """Every value of every QA_Scores.json (8 image and 6 depth metrics, masked and full) is the mean of the per-frame
+    CSV scores over ALL frames of all scenes, to the 4 decimals it is printed with."""
+    path = require_shared(f"reference_scores/{folder}")
+    published = json.loads((path / "QA_Scores.json").read_text())
+    scores = paper_scores.read_release_folder(path)
+    assert {s.metric for s in scores} == {m for group in published.values() for m in group}
+    assert len(scores) == 14
+    assert paper_scores.release_summary(scores) == published
+
+
+def test_the_release_row_is_the_papers_row(capsys):
+    """The tool on the authors' 2/3/4-view LLFF folders prints the paper's Table 1 SimpleNeRF row and its depth
+    table's LLFF row, digit for digit; the full-frame 2-view row gives the numbers SPEC section 8 quotes."""
+    folders = [str(require_shared(f"reference_scores/{f}")) for f in ("test1011", "test1021", "test1031")]
+    assert main([*folders, "--paper", "llff", "--depth"]) == 0
+    out, err = capsys.readouterr()
+    lines = table_lines(out)
+    paper = lines[-2].replace("SimpleNeRF (paper)", RELEASE_MODEL).strip("| ").split(" | ")
+    release = lines[-1].strip("| ").split(" | ")
+    # Published cells exist for 2 views (5 metrics) and 3 / 4 views (3 metrics each); each equals the release's.
+    shown = [(p, r) for p, r in zip(paper, release, strict=True) if p != "-"]
+    assert len(shown) == 1 + 5 + 3 + 3 and all(p == r for p, r in shown), (paper, release)
+    assert release[:6] == ["SimpleNeRF (release)", "0.2688", "0.6501", "19.57", "0.1420", "0.8480"]
+    assert err == ""  # the release covers the paper's 8 scenes
+    main([folders[0], "--scores", "full", "--depth"])
+    assert table_lines(capsys.readouterr().out)[3] == ("| SimpleNeRF (release) | 0.3899 | 0.5529 | 17.57 | 0.2777 | "
+                                                       "0.7531 |")
+    # Per scene: the frame means of each scene; fern's full-frame PSNR is the 17.01 SPEC section 8 quotes.
+    main([folders[0], "--scores", "full", "--per-scene"])
+    out = capsys.readouterr().out
+    fern = out.split("### fern")[1].split("###")[0]
+    assert table_lines(fern)[3] == "| SimpleNeRF (release) | 0.5089 | 0.4967 | 17.01 |"
+
+
+def test_release_and_measured_rows_mix_and_names_are_optional(runs, tmp_path, capsys):
+    release = tmp_path / "test1011"
+    shutil.copytree(require_shared("reference_scores/test1011"), release)
+    records = load_records(expand_runs([f"Ours={runs}/SimpleNeRF/fern_2v", str(release), f"Mine={release}@3"]))
+    assert [(r.model, r.scene, r.n_views) for r in records][:3] == [
+        ("Ours", "fern", 2), (RELEASE_MODEL, "fern", 2), (RELEASE_MODEL, "flower", 2)]
+    assert records[-1].model == "Mine" and records[-1].n_views == 3 and len(records) == 1 + 8 + 8
+    fern = records[1]
+    assert fern.frames["psnr"] == (15.2098, 16.5488, 19.2608) and fern.path == release / "QA_Scores"

@@ -37,7 +37,7 @@ def test_project_inverts_pixel_rays_and_t_is_camera_depth():
 def test_ndc_round_trip_maps_samples_back_to_metric_depth():
     c2w = camera(0.05, (0.1, 0.05, 0.2))
     uv = torch.tensor([[0.0, 0.0], [63.0, 47.0], [20.0, 30.0]])
-    rays = RayBundle.from_batch(make_rays(K, c2w, uv, width=64, height=48, near=1.0))
+    rays = make_rays(K, c2w, uv, width=64, height=48, near=1.0)
     t_ndc = torch.tensor([[0.0, 0.3, 0.6, 0.95]]).expand(3, 4)
     t_metric = ndc_to_metric_t(t_ndc, rays, near=1.0)
     world = rays.origins[:, None] + t_metric[..., None] * rays.directions[:, None]
@@ -54,7 +54,7 @@ def test_ndc_round_trip_maps_samples_back_to_metric_depth():
 
 
 def test_ndc_t_one_is_finite():
-    rays = RayBundle.from_batch(make_rays(K, camera(), torch.tensor([[5.0, 5.0]]), 64, 48, 1.0))
+    rays = make_rays(K, camera(), torch.tensor([[5.0, 5.0]]), 64, 48, 1.0)
     t = ndc_to_metric_t(torch.tensor([[1.0]]), rays, near=1.0)
     assert torch.isfinite(t).all() and t.item() > 1e4
 

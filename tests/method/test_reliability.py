@@ -8,12 +8,12 @@ import math
 import pytest
 import torch
 
-from simplenerf.data.datasets import Views
+from simplenerf.data.batches import RayBatch
 from simplenerf.data.llff import load_llff_scene, subset
 from simplenerf.data.synthetic import make_synthetic_scene
-from simplenerf.geometry.rays import pixel_rays, project
+from simplenerf.geometry.rays import RayBundle, pixel_rays, project
+from simplenerf.geometry.views import Views
 from simplenerf.method.reliability import (
-    MaskContext,
     PatchReprojectionMask,
     TrustAll,
     mask_fractions,
@@ -57,19 +57,21 @@ def pixel_grid(views: Views, stride: int = 1) -> dict[str, torch.Tensor]:
     )
     view, uv = v.flatten(), torch.stack([col.flatten(), row.flatten()], dim=-1)
     rays = views.rays(view, uv, near=1.0)
-    return {"view": view, "uv": uv, "origins": rays["origins"], "directions": rays["directions"],
+    return {"view": view, "uv": uv, "origins": rays.origins, "directions": rays.directions,
             "depth": views.depths[view, uv[:, 1], uv[:, 0]]}  # fmt: skip
 
 
-def context(views: Views, batch: dict[str, torch.Tensor]) -> MaskContext:
-    return MaskContext.from_batch(views.images, views.intrinsics, views.c2w, nearest_views(views.c2w), batch)
+def ray_batch(view: torch.Tensor, uv: torch.Tensor, origins: torch.Tensor, directions: torch.Tensor) -> RayBatch:
+    """A batch of world rays (the masks read view, uv, origins and directions; NDC and colours are unused)."""
+    return RayBatch(RayBundle(origins, directions, origins, directions), torch.zeros_like(origins), view, uv)
+
+
+def context(views: Views, batch: dict[str, torch.Tensor]) -> tuple[Views, RayBatch]:
+    return views, ray_batch(batch["view"], batch["uv"], batch["origins"], batch["directions"])
 
 
 def error_of(views: Views, batch: dict[str, torch.Tensor], depth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    c = context(views, batch)
-    return patch_reprojection_error(
-        c.images, c.intrinsics, c.c2w, c.nearest, c.view, c.uv, c.origins, c.directions, depth, K
-    )
+    return patch_reprojection_error(*context(views, batch), depth, K)
 
 
 def visible_in_nearest(views: Views, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -131,10 +133,7 @@ def test_vectorised_error_matches_a_reference_loop(train_views):
     random_depth = torch.empty(n).uniform_(-2.0, 8.0, generator=g)
     near_exact = exact * torch.empty(n).uniform_(0.9, 1.1, generator=g)
     depth = torch.where(torch.arange(n) % 2 == 0, near_exact, random_depth)
-    nearest = nearest_views(views.c2w)
-    error, valid = patch_reprojection_error(
-        views.images, views.intrinsics, views.c2w, nearest, view, uv, origins, directions, depth, K
-    )
+    error, valid = patch_reprojection_error(views, ray_batch(view, uv, origins, directions), depth, K)
 
     half = K // 2
     for r in range(n):
@@ -179,9 +178,8 @@ def test_point_behind_the_nearest_camera_is_invalid():
     uv_b, z_b = project(origins + depth[:, None] * directions, intrinsics[1:], c2w[1:])
     assert z_b.tolist() == pytest.approx([-3.0, -3.0, 3.0])
     assert ((uv_b >= K // 2) & (uv_b <= torch.tensor([width, height]) - 1 - K // 2)).all()  # in bounds
-    error, valid = patch_reprojection_error(
-        images, intrinsics, c2w, nearest_views(c2w), view, uv, origins, directions, depth, K
-    )
+    views = Views(images, intrinsics, c2w, ["a", "b"])
+    error, valid = patch_reprojection_error(views, ray_batch(view, uv, origins, directions), depth, K)
     assert valid.tolist() == [False, False, True]
     assert error[:2].tolist() == [math.inf, math.inf] and math.isfinite(error[2])
 
@@ -219,10 +217,9 @@ def test_reprojection_uses_the_nearest_views_own_intrinsics():
     view = torch.zeros(len(uv), dtype=torch.long)
     origins, directions = pixel_rays(k0[None], c2w[:1], uv)
     depth = torch.full((len(uv),), plane_depth)
-    args = (view, uv, origins, directions, depth, K)
-    nearest = nearest_views(c2w)
-    error, valid = patch_reprojection_error(images, intrinsics, c2w, nearest, *args)
-    wrong, wrong_valid = patch_reprojection_error(images, torch.stack([k0, k0]), c2w, nearest, *args)
+    rays = ray_batch(view, uv, origins, directions)
+    error, valid = patch_reprojection_error(Views(images, intrinsics, c2w, ["a", "b"]), rays, depth, K)
+    wrong, wrong_valid = patch_reprojection_error(Views(images, torch.stack([k0, k0]), c2w, ["a", "b"]), rays, depth, K)
     both = valid & wrong_valid
     assert both.sum() > 0.5 * len(uv)
     assert error[valid].max() < 0.05
@@ -251,18 +248,18 @@ def test_patch_mask_semantics_on_exact_depth(sharp_views):
     e_true, valid = error_of(sharp_views, batch, z_true)
     e_near, _ = error_of(sharp_views, batch, z_near)
     e_far, _ = error_of(sharp_views, batch, z_far)
-    for shared, single in zip(mask_of.errors(ctx, z_near, z_true), (e_near, e_true), strict=True):
+    for shared, single in zip(mask_of.errors(*ctx, z_near, z_true), (e_near, e_true), strict=True):
         assert torch.equal(shared, single)
 
     good = valid & (e_true < 0.05) & (e_near > THRESHOLD)
     assert good.sum() > 0.3 * len(z_true)
-    assert (mask_of(ctx, z_near, z_true)[good] == 1).all()  # main wrong, other right: train main
-    assert (mask_of(ctx, z_true, z_near)[good] == -1).all()  # main right, other wrong: train other
+    assert (mask_of(*ctx, z_near, z_true)[good] == 1).all()  # main wrong, other right: train main
+    assert (mask_of(*ctx, z_true, z_near)[good] == -1).all()  # main right, other wrong: train other
 
     both_bad = valid & (e_near > THRESHOLD) & (e_far > THRESHOLD)
     assert both_bad.sum() > 100
-    assert (mask_of(ctx, z_near, z_far)[both_bad] == 0).all()
-    assert (mask_of(ctx, z_true, z_true) == 0).all()  # equal depths tie everywhere
+    assert (mask_of(*ctx, z_near, z_far)[both_bad] == 0).all()
+    assert (mask_of(*ctx, z_true, z_true) == 0).all()  # equal depths tie everywhere
 
 
 def test_patch_mask_is_zero_near_the_border(train_views):
@@ -272,11 +269,11 @@ def test_patch_mask_is_zero_near_the_border(train_views):
     uv = torch.tensor([[half - 1, 20], [30, half - 1], [train_views.width - half, 20], [30, train_views.height - 1]])
     view = torch.zeros(len(uv), dtype=torch.long)
     rays = train_views.rays(view, uv, near=1.0)
-    batch = {"view": view, "uv": uv, "origins": rays["origins"], "directions": rays["directions"],
+    batch = {"view": view, "uv": uv, "origins": rays.origins, "directions": rays.directions,
              "depth": train_views.depths[view, uv[:, 1], uv[:, 0]]}  # fmt: skip
     e, valid = error_of(train_views, batch, batch["depth"])
     assert not valid.any() and (e == math.inf).all()
-    mask = PatchReprojectionMask(K, THRESHOLD)(context(train_views, batch), batch["depth"] * 0.6, batch["depth"])
+    mask = PatchReprojectionMask(K, THRESHOLD)(*context(train_views, batch), batch["depth"] * 0.6, batch["depth"])
     assert mask.tolist() == [0, 0, 0, 0]
 
 
@@ -324,7 +321,7 @@ def test_one_way_loss_ignores_minus_one_rays():
 
 def test_trust_all_gives_gradient_to_both():
     z = torch.zeros(4)
-    mask = TrustAll()(context(Views(torch.zeros(2, 8, 8, 3), torch.eye(3).expand(2, 3, 3), cameras_at(
+    mask = TrustAll()(*context(Views(torch.zeros(2, 8, 8, 3), torch.eye(3).expand(2, 3, 3), cameras_at(
         [[0.0, 0, 0], [1.0, 0, 0]]), ["a", "b"]), {"view": z.long(), "uv": z[:, None].expand(4, 2).long(),
         "origins": z[:, None].expand(4, 3), "directions": z[:, None].expand(4, 3)}), z, z)  # fmt: skip
     assert mask is None

@@ -9,7 +9,7 @@ C2W = torch.cat([torch.eye(3), torch.zeros(3, 1)], dim=1)[None]
 
 def rays(n: int = 32) -> RayBundle:
     uv = torch.stack([torch.arange(n) % 32, torch.arange(n) // 32], dim=-1)
-    return RayBundle.from_batch(make_rays(K, C2W, uv, 32, 24, near=1.0))
+    return make_rays(K, C2W, uv, 32, 24, near=1.0)
 
 
 def small_nerf() -> NeRF:

@@ -78,7 +78,7 @@ def fake_trainer(root, step: int, loggers: list, sanity: bool = False, zero: boo
 def validate(callback: ValidationRenders, trainer: SimpleNamespace) -> None:
     """One validation epoch of the single validation frame, as Lightning calls the hooks."""
     pred, target = frame()
-    batch = {"rgb": target.reshape(-1, 3), "height": H, "width": W, "name": "008", "index": 8}
+    batch = SimpleNamespace(rgb=target.reshape(-1, 3), height=H, width=W, name="008", index=8)  # a `Frame`
     callback.on_validation_epoch_start(trainer, None)
     callback.on_validation_batch_end(trainer, None, pred, batch, 0)
 

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from simplenerf.data.datasets import Views
-from simplenerf.data.llff import load_llff_scene
+from simplenerf.data.llff import average_pose, load_llff_scene, subset
+from simplenerf.data.scene import Scene, Split
+from simplenerf.geometry.views import Views
 from simplenerf.viz.trajectories import llff_spiral, recorded_trajectory, scene_trajectory, spiral_focus_depth
 
 # Four axis-aligned cameras (identity rotation) around the origin: the average pose is the identity.
@@ -75,7 +76,7 @@ def test_spiral_turns_with_the_rig():
 
 def test_spiral_keeps_dtype_and_checks_inputs():
     assert llff_spiral(axis_aligned_rig().float(), torch.from_numpy(BOUNDS)).dtype == torch.float32
-    with pytest.raises(ValueError, match="c2w_train must be"):
+    with pytest.raises(ValueError, match="c2w must be"):
         llff_spiral(axis_aligned_rig()[:, :, :3], BOUNDS)
     with pytest.raises(ValueError, match="bounds must be"):
         llff_spiral(axis_aligned_rig(), BOUNDS[:2])
@@ -93,14 +94,30 @@ def test_recorded_trajectory_is_the_frames_in_order():
     assert torch.equal(views.c2w, axis_aligned_rig().float())
 
 
-def test_scene_trajectory_spirals_around_the_train_views(synthetic_scene):
+def test_scene_trajectory_spirals_around_all_frames(synthetic_scene):
+    """As the authors' release: the spiral is fitted to every frame of the scene, not to the 2 train views."""
     scene = load_llff_scene(synthetic_scene, factor=1, n_views=2)
     train = scene.split.train
     spiral = scene_trajectory(scene, "spiral", n_frames=12)
-    assert torch.equal(spiral, llff_spiral(scene.views.c2w[train], scene.bounds[train], 12))
-    # recentred on the average train pose: the path is centred on the origin and looks along -z
-    assert torch.allclose(spiral[:, :, 3].mean(0), torch.zeros(3), atol=1e-5)
-    assert spiral[:, 2, 2].min() > 0.99
+    assert torch.equal(spiral, llff_spiral(scene.views.c2w, scene.bounds, 12))
+    assert not torch.allclose(spiral, llff_spiral(scene.views.c2w[train], scene.bounds[train], 12))
+    # Centred on the average pose of all frames (not the origin, which is the average train pose), looking along
+    # its -z; the first pose sits r_x along that pose's x axis, r_x the 90th percentile over all 20 frames.
+    centre_pose = torch.from_numpy(average_pose(scene.views.c2w.double().numpy()))
+    offsets = (scene.views.c2w[:, :, 3].double() - centre_pose[:, 3]) @ centre_pose[:, :3]
+    radii = np.percentile(offsets.abs().numpy(), 90, axis=0)
+    first = (spiral[0, :, 3].double() - centre_pose[:, 3]) @ centre_pose[:, :3]
+    torch.testing.assert_close(first, torch.tensor([radii[0], 0.0, 0.0], dtype=torch.float64), atol=1e-5, rtol=0)
     assert torch.equal(scene_trajectory(scene, "recorded"), scene.views.c2w)
     with pytest.raises(ValueError, match="unknown trajectory"):
         scene_trajectory(scene, "orbit")
+
+
+def test_a_scene_of_train_views_only_spirals_around_them(synthetic_scene):
+    """Own photos without other frames: the train views are all there is."""
+    scene = load_llff_scene(synthetic_scene, factor=1, n_views=2)
+    train = scene.split.train
+    own = Scene(views=subset(scene.views, train), split=Split(train=[0, 1], test=[], val=[0]), scale=scene.scale,
+                bounds=scene.bounds[train])
+    assert torch.equal(scene_trajectory(own, "spiral", n_frames=12),
+                       llff_spiral(scene.views.c2w[train], scene.bounds[train], 12))

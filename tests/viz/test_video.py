@@ -20,6 +20,14 @@ def tiny_nerf() -> NeRF:
     return mlp_nerf(num_coarse=4, num_fine=4, num_layers=2, width=8, skip_layer=1)
 
 
+def mp4_codec(path: Path) -> str:
+    """The fourcc of the first sample entry of an mp4's `stsd` box: `avc1` for H.264, `mp4v` for MPEG-4 part 2."""
+    data = path.read_bytes()
+    assert data[4:8] == b"ftyp", "not an mp4"
+    i = data.index(b"stsd")  # [size]['stsd'][version+flags][entry count][entry size][format]
+    return data[i + 16 : i + 20].decode("ascii")
+
+
 def read_video(path: Path) -> list[np.ndarray]:
     """All frames, BGR [H, W, 3]."""
     capture = cv2.VideoCapture(str(path))
@@ -73,6 +81,9 @@ def test_render_video_writes_rgb_beside_depth(synthetic_scene, tmp_path):
     assert out == tmp_path / "v.mp4" and sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]
     frames = read_video(out)
     assert len(frames) == 8 and frames[0].shape == (h, 2 * w, 3)
+    # H.264 in yuv420p with the index first: what browsers and W&B play.
+    assert mp4_codec(out) == "avc1"
+    assert out.read_bytes().index(b"moov") < out.read_bytes().index(b"mdat")
     # left half: the deterministic render of the first pose (up to mp4 compression)
     expected = nerf.render_rays_chunked(frame_rays(c2w[0], scene.views.intrinsics[0], h, w, 1.0), 1024)["rgb"]
     expected = np.round(expected.reshape(h, w, 3).numpy() * 255)
@@ -89,7 +100,7 @@ def test_render_video_leaves_nothing_when_interrupted_or_unwritable(tmp_path, mo
     nerf = tiny_nerf()
     k = torch.tensor([[20.0, 0.0, 8.0], [0.0, 20.0, 6.0], [0.0, 0.0, 1.0]])
     c2w = torch.eye(3, 4).expand(4, 3, 4)
-    with pytest.raises(OSError, match="cannot open an mp4v video writer"):
+    with pytest.raises(OSError, match="cannot open an H.264 video writer"):
         render_video(nerf, c2w, k, 12, 16, 1.0, 256, tmp_path / "v.unknown_container")
     calls = []
     original = nerf.render_rays_chunked

@@ -1,0 +1,64 @@
+"""Typed batches: what the data modules hand to the model.
+
+- `RayBatch`: R rays of train pixels with their colours, views and pixels (what the reliability masks need).
+- `SparseDepthBatch`: a `RayBatch` at pixels with an SfM depth, plus the depths and their loss weights.
+- `TrainingBatch`: one iteration's random rays and, when sparse depth is on, its sparse-depth rays.
+- `Frame`: every pixel of one full frame (validation, test, predict), row-major.
+
+All are dataclasses, which Lightning moves between devices as they are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from simplenerf.geometry.rays import RayBundle
+
+
+@dataclass
+class RayBatch:
+    """R training rays."""
+
+    rays: RayBundle
+    rgb: torch.Tensor  # [R, 3] ground-truth colours in [0, 1]
+    view: torch.Tensor  # [R] long, index into the train views
+    uv: torch.Tensor  # [R, 2] pixel (column, row), continuous for SfM keypoints
+
+    def __len__(self) -> int:
+        return len(self.rays)
+
+
+@dataclass
+class SparseDepthBatch(RayBatch):
+    """R rays at pixels with a sparse (SfM) depth."""
+
+    depth: torch.Tensor  # [R] camera z-depth, scene units
+    weight: torch.Tensor  # [R] per-point loss weight
+
+
+@dataclass
+class TrainingBatch:
+    """One training iteration: random rays, and sparse-depth rays when the data module serves them."""
+
+    random: RayBatch
+    sparse: SparseDepthBatch | None = None
+
+    @property
+    def rays(self) -> RayBundle:
+        """The random rays followed by the sparse-depth rays: the model renders all of them in one pass."""
+        return self.random.rays if self.sparse is None else self.random.rays.cat(self.sparse.rays)
+
+
+@dataclass
+class Frame:
+    """Every pixel of one frame, row-major (v outer, u inner)."""
+
+    rays: RayBundle  # H * W rays
+    rgb: torch.Tensor  # [H * W, 3] ground truth in [0, 1]
+    depth: torch.Tensor | None  # [H * W] reference camera z-depth, when the scene has it
+    index: int  # frame index in the scene
+    name: str  # frame file name (outputs are named after it)
+    height: int
+    width: int

@@ -1,0 +1,166 @@
+"""What every scene format shares: the split, the `Scene` it loads, and the `SceneDataModule` base.
+
+A format (LLFF, RealEstate-10K, the synthetic scene) declares only its own arguments and `load_scene`; the base owns
+the rest: which frames train (`n_views` by the paper's split, or an explicit `train_frames` list), random training
+rays, sparse depth (SfM on the train views), reference depth, and the full frames of validation, test and predict.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from simplenerf.data.datasets import Frames, RandomRays, SparseDepthPool
+from simplenerf.data.sparse_depth import load_or_compute_sparse_depth
+from simplenerf.errors import DataError
+from simplenerf.geometry.views import Views
+
+
+@dataclass
+class Split:
+    """Frame indices (into the scene's sorted frames) of each role."""
+
+    train: list[int]
+    test: list[int]
+    val: list[int]
+
+
+def explicit_split(num_frames: int, train_frames: list[int], test: list[int]) -> Split:
+    """The split with `train_frames` training and the format's `test` frames (minus any train frame) testing.
+
+    Without test frames (own photos) the validation view is the first train frame.
+    """
+    bad = [i for i in train_frames if not 0 <= i < num_frames]
+    if bad or not train_frames or len(set(train_frames)) != len(train_frames):
+        raise DataError(f"train_frames {train_frames} must be distinct frame indices in [0, {num_frames - 1}]")
+    train = sorted(train_frames)
+    test = [i for i in test if i not in train]
+    return Split(train=train, test=test, val=[test[len(test) // 2]] if test else [train[0]])
+
+
+@dataclass
+class Scene:
+    """All frames of a scene, scaled and recentred, with the split."""
+
+    views: Views
+    split: Split
+    scale: float  # scene units per file unit
+    bounds: np.ndarray  # [N, 2] near/far per frame, scene units
+
+
+class SceneDataModule(L.LightningDataModule, abc.ABC):
+    """Random training rays from the train views, full frames for validation, test and predict."""
+
+    video_trajectory = "spiral"  # tools/render_video.py: an LLFF spiral around the train views, or "recorded"
+
+    def __init__(
+        self,
+        n_views: int | None = 2,
+        train_frames: list[int] | None = None,
+        rays_per_batch: int = 2048,
+        near: float = 1.0,
+        seed: int = 0,
+        num_workers: int = 0,
+        sparse_rays_per_batch: int = 0,
+        sparse_depth_cache: str = "data/cache/sparse_depth",
+        sparse_depth_weighting: bool = False,
+        reference_depth_dir: str | None = None,
+    ) -> None:
+        """
+        Args:
+            n_views: number of training views by the paper's split of the format (2, 3 or 4 in the paper); null:
+                every non-test frame (the dense reference NeRF, configs/dense/).
+            train_frames: explicit training frames (indices into the scene's sorted frames), instead of n_views;
+                test frames are then the format's test frames that do not train (none: `test` renders only).
+            rays_per_batch: random training rays per iteration.
+            near: NDC near plane in scaled scene units (the model's `nerf.near` is linked to it).
+            seed: seed of the training-ray order.
+            num_workers: data-loader worker processes for training rays.
+            sparse_rays_per_batch: rays per iteration at pixels with an SfM depth, for the sparse-depth loss
+                (DS-NeRF / SimpleNeRF: 2048); 0 disables sparse depth.
+            sparse_depth_cache: folder where the sparse depth of a scene, view set and resolution is cached.
+            sparse_depth_weighting: weight each point by DS-NeRF's 2 exp(-(err / mean err)^2) of its reprojection
+                error (off in DS-NeRF's and SimpleNeRF's releases).
+            reference_depth_dir: folder of reference depth `<frame name>.npy` (camera z-depth in file units, e.g. a
+                dense NeRF's export by tools/export_reference_depth.py) for depth metrics and visibility masks;
+                null: the format's own (the synthetic scene's exact depth), else no depth metrics.
+        """
+        super().__init__()
+        self.n_views, self.train_frames = n_views, None if train_frames is None else list(train_frames)
+        self.rays_per_batch, self.near, self.seed, self.num_workers = rays_per_batch, near, seed, num_workers
+        self.sparse_rays_per_batch, self.sparse_depth_cache = sparse_rays_per_batch, sparse_depth_cache
+        self.sparse_depth_weighting = sparse_depth_weighting
+        self.reference_depth_dir = reference_depth_dir
+        self.scene: Scene | None = None
+        self.sparse_depth: SparseDepthPool | None = None
+
+    @abc.abstractmethod
+    def load_scene(self) -> Scene:
+        """All frames of the scene with the split (of `n_views`, or of `train_frames` when given)."""
+
+    def cache_key(self) -> dict:
+        """What identifies this scene's sparse depth besides the train views and the resolution."""
+        return {"scene": str(Path(self.scene_dir).resolve())}
+
+    def check_inputs(self, stage: str) -> None:
+        """Loads everything `stage` needs; the CLI calls this before loggers or outputs start, so bad input (a missing
+        or unreadable file, an impossible split, a scene without SfM points) stops the run with nothing written."""
+        self.setup(stage)
+
+    def setup(self, stage: str) -> None:
+        if self.scene is None:
+            self.scene = self.load_scene()
+        if stage == "fit" and self.sparse_rays_per_batch and self.sparse_depth is None:
+            self.sparse_depth = self.load_sparse_depth()
+
+    def load_sparse_depth(self) -> SparseDepthPool:
+        """SfM depth of the train views (poses fixed), computed with pycolmap on first use and cached."""
+        train = self.train_views
+        key = {**self.cache_key(), "views": self.scene.split.train, "height": train.height, "width": train.width}
+        print(f"sparse depth: SfM on train views {self.scene.split.train} of {self.scene_dir} "
+              f"(cached in {self.sparse_depth_cache}) ...", flush=True)
+        per_view = load_or_compute_sparse_depth(self.sparse_depth_cache, key, train.images, train.intrinsics,
+                                                train.c2w)
+        for i, sd in zip(self.scene.split.train, per_view, strict=True):
+            print(f"  frame {i}: {len(sd)} points, median reprojection error "
+                  f"{np.median(sd.reprojection_error):.2f} px", flush=True)
+        dtype = train.images.dtype
+        error = torch.from_numpy(np.concatenate([sd.reprojection_error for sd in per_view])).to(dtype)
+        weight = torch.ones_like(error)
+        if self.sparse_depth_weighting:
+            weight = 2 * torch.exp(-((error / error.mean()) ** 2))
+        return SparseDepthPool(
+            view=torch.cat([torch.full((len(sd),), i) for i, sd in enumerate(per_view)]),
+            uv=torch.from_numpy(np.concatenate([sd.pixels for sd in per_view])).to(dtype),
+            depth=torch.from_numpy(np.concatenate([sd.depth for sd in per_view])).to(dtype),
+            weight=weight,
+        )
+
+    @property
+    def train_views(self) -> Views:
+        assert self.scene is not None, "call setup() first"
+        return self.scene.views.subset(self.scene.split.train)
+
+    def train_dataloader(self) -> DataLoader:
+        rays = RandomRays(self.train_views, self.rays_per_batch, self.near, self.seed, self.sparse_depth,
+                          self.sparse_rays_per_batch)
+        return DataLoader(rays, batch_size=None, num_workers=self.num_workers)
+
+    def _frames(self, indices: list[int]) -> DataLoader:
+        assert self.scene is not None, "call setup() first"
+        return DataLoader(Frames(self.scene.views, self.near, indices), batch_size=None)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._frames(self.scene.split.val)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._frames(self.scene.split.test)
+
+    def predict_dataloader(self) -> DataLoader:
+        return self._frames(self.scene.split.test)

@@ -1,0 +1,182 @@
+"""A grid radiance field: K-Planes (Fridovich-Keil et al., CVPR 2023) over the NDC box of forward-facing scenes.
+
+Why K-Planes (measured in benchmarks/grid_cost.py and README "Grid backbone"): of the pure-PyTorch grids tried on
+the 2-core CPU, its forward + backward + Adam step per sample point was among the cheapest (about 25x cheaper than
+the paper's 8x256 MLP), the parameters Adam updates each step stay small (planes, not volumes), it was shown on LLFF
+in NDC, and its multi-scale planes give SimpleNeRF's points augmentation directly: the same field with its coarsest
+scales only.
+
+Naming, used throughout:
+- x, y, z: NDC coordinates of the sample points (`Samples.positions`); forward-facing scenes live in about
+  [-1, 1]^3 (z in [-1, 1)). Points outside the box take the border values of the planes.
+- plane: a 2D feature grid [1, C, H, W] over two of the axes: xy (W = x, H = y), xz (W = x, H = z), yz (W = y,
+  H = z). Node i of an axis with n nodes sits at -1 + 2 i / (n - 1) (`align_corners=True`): values at nodes are
+  exact, bilinear in between.
+- scale: the three planes at one resolution; the feature of a point at a scale is the Hadamard product of its three
+  plane interpolations (C values); the scales' features are concatenated (K-Planes' "multiscale" features).
+- decoder: a small MLP from the features to density (through a truncated exponential, as K-Planes and Instant-NGP;
+  so the raw density is >= 0 and the NeRF's ReLU leaves it unchanged) and a geometry feature, then a colour MLP on
+  [geometry feature, gamma(view direction)] (without the direction when `view_dependent=False`).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from simplenerf.model.encodings import encoded_dim
+from simplenerf.model.fields import Field, FieldOutputs
+from simplenerf.model.samples import Samples
+
+# (width axis, height axis) of each plane of a scale, as indices into (x, y, z).
+PLANE_AXES = ((0, 1), (0, 2), (1, 2))
+PLANE_NAMES = ("xy", "xz", "yz")
+
+
+class _TruncExp(torch.autograd.Function):
+    """exp(x) whose gradient uses exp(clamp(x, max=15)): large densities stay trainable without exploding steps."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor) -> torch.Tensor:
+        ctx.save_for_backward(x)
+        return torch.exp(x)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        (x,) = ctx.saved_tensors
+        return grad * torch.exp(x.clamp(max=15.0))
+
+
+def trunc_exp(x: torch.Tensor) -> torch.Tensor:
+    """exp with a clamped gradient (Instant-NGP's density activation)."""
+    return _TruncExp.apply(x)
+
+
+def sample_plane(plane: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
+    """Bilinear interpolation of one plane.
+
+    Args:
+        plane: [1, C, H, W]. coords: [P, 2] (width coordinate, height coordinate) in [-1, 1] (node 0 at -1, node
+            n - 1 at +1; outside: the border value).
+
+    Returns:
+        [C, P].
+    """
+    grid = coords.to(plane.dtype).view(1, -1, 1, 2)
+    out = F.grid_sample(plane, grid, mode="bilinear", padding_mode="border", align_corners=True)  # [1, C, P, 1]
+    return out.view(plane.shape[1], -1)
+
+
+def plane_tv(plane: torch.Tensor) -> torch.Tensor:
+    """K-Planes' total variation of one plane [1, C, H, W]: 2 (mean squared difference along H + along W)."""
+    tv_h = torch.square(plane[..., 1:, :] - plane[..., :-1, :]).mean()
+    tv_w = torch.square(plane[..., :, 1:] - plane[..., :, :-1]).mean()
+    return 2.0 * (tv_h + tv_w)
+
+
+class KPlanesField(Field):
+    """Multi-scale K-Planes (3 planes per scale, Hadamard product, scales concatenated) + a small MLP decoder."""
+
+    def __init__(
+        self,
+        resolutions: list[int] | None = None,
+        depth_resolutions: list[int] | None = None,
+        features: int = 16,
+        view_dependent: bool = True,
+        view_bands: int = 4,
+        hidden: int = 64,
+        geometry_features: int = 15,
+        tv_weight: float = 1e-4,
+        depth_tv_weight: float | None = None,
+        init_range: tuple[float, float] = (0.1, 0.5),
+    ) -> None:
+        """
+        Args:
+            resolutions: nodes along x and y at each scale, coarsest first (None: [64, 128, 256]). The points
+                augmentation is the same field with the first (coarsest) scales only.
+            depth_resolutions: nodes along z at each scale (None: the same as `resolutions`).
+            features: C, feature channels of every plane.
+            view_dependent: colour depends on the view direction (False: the views augmentation).
+            view_bands: bands of the direction encoding gamma(v, 0, L_v) fed to the colour MLP (shared with the other
+                fields through the samples' cache).
+            hidden: width of the density and colour MLPs (one hidden layer each).
+            geometry_features: features passed from the density MLP to the colour MLP.
+            tv_weight: weight of the planes' total variation (K-Planes' spatial TV; 0: off), added to the loss by
+                `regularization`.
+            depth_tv_weight: TV weight of the xz and yz planes (None: `tv_weight`).
+            init_range: planes are initialised uniformly in this range (K-Planes: (0.1, 0.5)).
+        """
+        super().__init__()
+        resolutions = [64, 128, 256] if resolutions is None else list(resolutions)
+        depth_resolutions = resolutions if depth_resolutions is None else list(depth_resolutions)
+        if not resolutions or len(depth_resolutions) != len(resolutions):
+            raise ValueError(f"need one depth resolution per scale, got {resolutions} and {depth_resolutions}")
+        if min(resolutions + depth_resolutions) < 2:
+            raise ValueError(f"every axis needs at least 2 nodes, got {resolutions} and {depth_resolutions}")
+        self.resolutions, self.depth_resolutions = resolutions, depth_resolutions
+        self.features, self.view_dependent, self.view_bands = features, view_dependent, view_bands
+        self.tv_weight = tv_weight
+        self.depth_tv_weight = tv_weight if depth_tv_weight is None else depth_tv_weight
+        self.planes = nn.ParameterList()
+        for res, res_z in zip(resolutions, depth_resolutions, strict=True):
+            nodes = (res, res, res_z)
+            for width_axis, height_axis in PLANE_AXES:
+                plane = torch.empty(1, features, nodes[height_axis], nodes[width_axis]).uniform_(*init_range)
+                self.planes.append(nn.Parameter(plane))
+        self.density_net = nn.Sequential(
+            nn.Linear(features * len(resolutions), hidden), nn.ReLU(), nn.Linear(hidden, 1 + geometry_features)
+        )
+        color_in = geometry_features + (encoded_dim(3, view_bands) if view_dependent else 0)
+        self.color_net = nn.Sequential(nn.Linear(color_in, hidden), nn.ReLU(), nn.Linear(hidden, 3))
+
+    def grid_features(self, positions: torch.Tensor) -> torch.Tensor:
+        """The multi-scale plane features of points.
+
+        Args:
+            positions: [P, 3] NDC points.
+
+        Returns:
+            [P, C * scales]: per scale, the product of the three planes' interpolations; scales concatenated.
+        """
+        coords = [positions[:, list(axes)] for axes in PLANE_AXES]  # shared by every scale
+        per_scale = []
+        for scale in range(len(self.resolutions)):
+            planes = self.planes[3 * scale : 3 * scale + 3]
+            feature = sample_plane(planes[0], coords[0])
+            for plane, plane_coords in zip(planes[1:], coords[1:], strict=True):
+                feature = feature * sample_plane(plane, plane_coords)
+            per_scale.append(feature)
+        return torch.cat(per_scale, dim=0).t()
+
+    def forward(self, samples: Samples) -> FieldOutputs:
+        """Density and colour at the samples' NDC positions (and view directions if `view_dependent`)."""
+        rays, num = samples.positions.shape[:2]
+        h = self.density_net(self.grid_features(samples.positions.reshape(-1, 3)))  # [R S, 1 + G]
+        color_in = h[:, 1:]
+        if self.view_dependent:
+            dirs = samples.encoded_directions(self.view_bands)  # [R, D]
+            dirs = dirs[:, None, :].expand(rays, num, dirs.shape[-1]).reshape(rays * num, -1).to(color_in.dtype)
+            color_in = torch.cat([color_in, dirs], dim=-1)
+        rgb = torch.sigmoid(self.color_net(color_in))
+        return FieldOutputs(raw_density=trunc_exp(h[:, 0]).view(rays, num), rgb=rgb.view(rays, num, 3))
+
+    def parameter_groups(self) -> dict[str, list[nn.Parameter]]:
+        """{"grid": the planes, "decoder": the MLPs}: grids train with a much larger learning rate than MLPs."""
+        return {"grid": list(self.planes), "decoder": [*self.density_net.parameters(), *self.color_net.parameters()]}
+
+    def regularization(self) -> torch.Tensor | None:
+        """tv_weight * sum of the xy planes' TV + depth_tv_weight * sum of the xz and yz planes' TV (K-Planes)."""
+        if self.tv_weight == 0 and self.depth_tv_weight == 0:
+            return None
+        total = None
+        for index, plane in enumerate(self.planes):
+            weight = self.tv_weight if index % 3 == 0 else self.depth_tv_weight
+            if weight:
+                term = weight * plane_tv(plane)
+                total = term if total is None else total + term
+        return total
+
+    def extra_repr(self) -> str:
+        return (f"resolutions={self.resolutions}, depth_resolutions={self.depth_resolutions}, "
+                f"features={self.features}, view_dependent={self.view_dependent}")

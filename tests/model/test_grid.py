@@ -1,0 +1,139 @@
+"""The K-Planes grid field: exact interpolation, where gradients go, its simplified variants and its regulariser."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from simplenerf.model.fields import Field
+from simplenerf.model.grid import KPlanesField, plane_tv, sample_plane, trunc_exp
+from simplenerf.model.samples import Samples
+
+
+def node(index: int, nodes: int) -> float:
+    """NDC coordinate of node `index` of an axis with `nodes` nodes (align_corners: -1 and +1 are the end nodes)."""
+    return -1.0 + 2.0 * index / (nodes - 1)
+
+
+def samples_at(positions: torch.Tensor, directions: torch.Tensor | None = None) -> Samples:
+    """Samples at NDC points [R, S, 3] (the other fields of `Samples` do not matter to a field)."""
+    r, s = positions.shape[:2]
+    if directions is None:
+        directions = torch.randn(r, 3, generator=torch.Generator().manual_seed(1))
+    directions = torch.nn.functional.normalize(directions, dim=-1)
+    zeros = torch.zeros(r, s)
+    return Samples(t=zeros, t_metric=zeros, delta=zeros, positions=positions, directions=directions)
+
+
+def test_interpolation_at_nodes_returns_node_values_and_is_bilinear_between():
+    plane = torch.randn(1, 4, 5, 7, generator=torch.Generator().manual_seed(0))  # C=4, H=5 (height axis), W=7
+    rows, cols = torch.meshgrid(torch.arange(5), torch.arange(7), indexing="ij")
+    coords = torch.stack([cols.flatten() / 6 * 2 - 1, rows.flatten() / 4 * 2 - 1], dim=-1)  # (width, height)
+    torch.testing.assert_close(sample_plane(plane, coords), plane[0].reshape(4, -1), rtol=0, atol=1e-6)
+    # The centre of cell (row 1..2, col 3..4) is the mean of its four corners; a point a quarter of the way along
+    # the width axis from node (2, 3) is 3/4 of that node plus 1/4 of its right neighbour.
+    centre = torch.tensor([[(node(3, 7) + node(4, 7)) / 2, (node(1, 5) + node(2, 5)) / 2]])
+    expected = plane[0, :, 1:3, 3:5].mean(dim=(1, 2))
+    torch.testing.assert_close(sample_plane(plane, centre)[:, 0], expected, rtol=0, atol=1e-6)
+    quarter = torch.tensor([[0.75 * node(3, 7) + 0.25 * node(4, 7), node(2, 5)]])
+    torch.testing.assert_close(sample_plane(plane, quarter)[:, 0], 0.75 * plane[0, :, 2, 3] + 0.25 * plane[0, :, 2, 4],
+                               rtol=0, atol=1e-6)
+    # Outside the box: the border value.
+    torch.testing.assert_close(sample_plane(plane, torch.tensor([[5.0, -3.0]]))[:, 0], plane[0, :, 0, 6])
+
+
+def test_features_at_grid_nodes_are_the_product_of_the_three_planes_node_values():
+    field = KPlanesField(resolutions=[5], depth_resolutions=[3], features=4)
+    xy, xz, yz = (p.detach()[0] for p in field.planes)  # [C, y, x], [C, z, x], [C, z, y]
+    assert xy.shape == (4, 5, 5) and xz.shape == (4, 3, 5) and yz.shape == (4, 3, 5)
+    points = torch.tensor([[node(a, 5), node(b, 5), node(c, 3)] for a, b, c in [(0, 0, 0), (1, 3, 2), (4, 2, 1)]])
+    expected = torch.stack([xy[:, b, a] * xz[:, c, a] * yz[:, c, b] for a, b, c in [(0, 0, 0), (1, 3, 2), (4, 2, 1)]])
+    torch.testing.assert_close(field.grid_features(points), expected, rtol=1e-6, atol=1e-7)
+
+
+def test_gradients_reach_exactly_the_corners_of_the_cells_around_a_point():
+    field = KPlanesField(resolutions=[9], depth_resolutions=[5], features=3)
+    # Inside x cell 2..3 (of 9 nodes), y cell 5..6, z cell 1..2 (of 5 nodes).
+    point = torch.tensor([[(node(2, 9) + 0.3 * 0.25), (node(5, 9) + 0.6 * 0.25), (node(1, 5) + 0.2 * 0.5)]])
+    field.grid_features(point).sum().backward()
+    cells = {"xy": ([5, 6], [2, 3]), "xz": ([1, 2], [2, 3]), "yz": ([1, 2], [5, 6])}  # (height nodes, width nodes)
+    for plane, (rows, cols) in zip(field.planes, cells.values(), strict=True):
+        touched = plane.grad[0].abs().sum(0) > 0  # [H, W]
+        expected = torch.zeros_like(touched)
+        expected[rows[0] : rows[1] + 1, cols[0] : cols[1] + 1] = True
+        assert torch.equal(touched, expected)
+
+
+def test_points_augmentation_is_the_same_field_with_its_coarsest_scales_only():
+    main = KPlanesField(resolutions=[16, 32, 64], depth_resolutions=[8, 16, 32], features=4)
+    simple = KPlanesField(resolutions=[16], depth_resolutions=[8], features=4)
+    plane_params = lambda f: sum(p.numel() for p in f.parameter_groups()["grid"])  # noqa: E731
+    assert plane_params(main) == 4 * ((16 * 16 + 2 * 16 * 8) + (32 * 32 + 2 * 32 * 16) + (64 * 64 + 2 * 64 * 32))
+    assert plane_params(simple) == 4 * (16 * 16 + 2 * 16 * 8)  # 42x fewer grid parameters
+    assert [tuple(p.shape) for p in simple.planes] == [tuple(p.shape) for p in main.planes[:3]]
+    # With the same coarsest planes, its features are the main field's first-scale features.
+    with torch.no_grad():
+        for mine, theirs in zip(simple.planes, main.planes[:3], strict=False):
+            mine.copy_(theirs)
+    points = torch.rand(10, 3) * 2 - 1
+    torch.testing.assert_close(simple.grid_features(points), main.grid_features(points)[:, :4])
+
+
+def test_view_independent_field_ignores_directions_and_the_main_one_does_not():
+    torch.manual_seed(0)
+    positions = torch.rand(3, 4, 3) * 2 - 1
+    d1 = torch.nn.functional.normalize(torch.randn(3, 3), dim=-1)
+    d2 = torch.nn.functional.normalize(torch.randn(3, 3), dim=-1)
+    views = KPlanesField(resolutions=[8], features=4, view_dependent=False)
+    a, b = views(samples_at(positions, d1)), views(samples_at(positions, d2))
+    assert torch.equal(a.rgb, b.rgb) and torch.equal(a.raw_density, b.raw_density)
+    assert views.color_net[0].in_features == 15  # the geometry feature only
+    main = KPlanesField(resolutions=[8], features=4)
+    a, b = main(samples_at(positions, d1)), main(samples_at(positions, d2))
+    assert torch.equal(a.raw_density, b.raw_density) and not torch.allclose(a.rgb, b.rgb)
+
+
+def test_outputs_follow_the_field_contract():
+    field = KPlanesField(resolutions=[8, 16], features=4)
+    assert isinstance(field, Field)
+    out = field(samples_at(torch.rand(5, 6, 3) * 2 - 1))
+    assert out.raw_density.shape == (5, 6) and out.rgb.shape == (5, 6, 3)
+    assert bool((out.raw_density > 0).all())  # trunc_exp: the NeRF's ReLU leaves it as is
+    assert bool(((out.rgb > 0) & (out.rgb < 1)).all())
+
+
+def test_parameter_groups_split_grids_from_decoders():
+    field = KPlanesField(resolutions=[8, 16], features=4)
+    groups = field.parameter_groups()
+    assert set(groups) == {"grid", "decoder"}
+    assert len(groups["grid"]) == 6 and all(p.dim() == 4 for p in groups["grid"])
+    ids = [id(p) for ps in groups.values() for p in ps]
+    assert sorted(ids) == sorted(id(p) for p in field.parameters())  # a partition of all parameters
+
+
+def test_regularization_is_the_weighted_total_variation_of_the_planes():
+    field = KPlanesField(resolutions=[4], depth_resolutions=[3], features=2, tv_weight=0.5, depth_tv_weight=0.25)
+    with torch.no_grad():
+        for p in field.planes:
+            p.fill_(1.0)
+        field.planes[0].copy_(torch.arange(4.0).expand(1, 2, 4, 4))  # +1 per node along x: TV = 2 (1 + 0)
+        field.planes[1][..., 1, :] = 3.0  # xz: a ridge along z: differences 2, -2 on 2 of 2 rows -> 2 (4 + 0)
+    assert plane_tv(field.planes[0]).item() == pytest.approx(2.0)
+    assert plane_tv(field.planes[1]).item() == pytest.approx(8.0)
+    assert field.regularization().item() == pytest.approx(0.5 * 2.0 + 0.25 * 8.0)
+    assert KPlanesField(resolutions=[4], tv_weight=0.0).regularization() is None
+
+
+def test_trunc_exp_clamps_its_gradient_only():
+    x = torch.tensor([0.0, 2.0, 20.0], requires_grad=True)
+    y = trunc_exp(x)
+    torch.testing.assert_close(y, torch.exp(x.detach()))
+    y.sum().backward()
+    torch.testing.assert_close(x.grad, torch.exp(torch.tensor([0.0, 2.0, 15.0])))
+
+
+def test_bad_sizes_are_errors():
+    with pytest.raises(ValueError, match="one depth resolution per scale"):
+        KPlanesField(resolutions=[8, 16], depth_resolutions=[8])
+    with pytest.raises(ValueError, match="at least 2 nodes"):
+        KPlanesField(resolutions=[1])

@@ -11,7 +11,7 @@ import lightning as L
 import torch
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, RichProgressBar
 
-from simplenerf.errors import TrainingDiverged
+from simplenerf.errors import SimpleNeRFError, TrainingDiverged
 
 
 class RaysPerSecond(L.Callback):
@@ -239,9 +239,19 @@ class LossWeightSchedule(L.Callback):
                 current = value
         return current
 
+    def check_model(self, model: L.LightningModule) -> None:
+        """Every scheduled name must be one of the model's losses; the CLI calls this before any data is read, so a
+        typo stops the run with one line instead of failing at the first batch."""
+        weights = getattr(model, "loss_weights", {})
+        unknown = sorted(set(self.schedules) - set(weights))
+        if unknown:
+            raise SimpleNeRFError(
+                f"LossWeightSchedule schedules {', '.join(map(repr, unknown))}, but the model's losses are "
+                f"{', '.join(sorted(weights))} (augmentation names come from model.augmentations)"
+            )
+
     def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        self.check_model(pl_module)
         for name in self.schedules:
-            if name not in pl_module.loss_weights:
-                raise KeyError(f"scheduled loss {name!r} is not one of {sorted(pl_module.loss_weights)}")
             pl_module.loss_weights[name] = self.value(name, trainer.global_step, pl_module.loss_weights[name])
             pl_module.log(f"train_params/{name}", pl_module.loss_weights[name])

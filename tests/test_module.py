@@ -5,7 +5,7 @@ import torch
 
 from simplenerf.data.batches import TrainingBatch
 from simplenerf.data.synthetic import SyntheticDataModule
-from simplenerf.model.nerf import NeRF, mlp_nerf
+from simplenerf.model.nerf import mlp_nerf
 from simplenerf.module import SimpleNeRF
 
 
@@ -125,7 +125,8 @@ def test_augmentations_share_the_main_coarse_samples(datamodule, monkeypatch):
     seen = []
     for aug in model.augmentations:
         original = aug.field.forward
-        monkeypatch.setattr(aug.field, "forward", lambda s, f=original: seen.append((s, s.encoded_positions(10))) or f(s))
+        monkeypatch.setattr(aug.field, "forward",
+                            lambda s, f=original: seen.append((s, s.encoded_positions(10))) or f(s))
     original_coarse = model.nerf.coarse.forward
     monkeypatch.setattr(model.nerf.coarse, "forward",
                         lambda s: seen.append((s, s.encoded_positions(10))) or original_coarse(s))
@@ -141,6 +142,16 @@ def test_loss_weight_schedule_is_data():
     assert [schedule.value("points", s, 0.1) for s in (0, 9999, 10000, 50000)] == [0.0, 0.0, 0.1, 0.1]
     with pytest.raises(ValueError):
         LossWeightSchedule({"cfc": [(10, 0.1), (0, 0.0)]})
+
+
+def test_a_schedule_naming_an_unknown_loss_is_one_clear_error():
+    from simplenerf.callbacks import LossWeightSchedule
+    from simplenerf.errors import SimpleNeRFError
+
+    model = simplenerf_module()
+    LossWeightSchedule({"points": [(0, 0.0)], "cfc": [(0, 0.0)]}).check_model(model)  # known names pass
+    with pytest.raises(SimpleNeRFError, match=r"schedules 'point', but the model's losses are cfc, color, points"):
+        LossWeightSchedule({"point": [(0, 0.0)]}).check_model(model)
 
 
 def test_reliability_maps_of_a_train_view(datamodule, monkeypatch):

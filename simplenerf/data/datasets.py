@@ -35,12 +35,27 @@ def _rank() -> int:
     return 0
 
 
+def shuffled_pool(size: int, batch: int, generator: torch.Generator) -> Iterator[torch.Tensor]:
+    """Endless batches [batch] of indices into a pool of `size` entries: consecutive slices of successive random
+    permutations, so every entry is drawn once per pass; a batch may span two passes (and several, if the pool is
+    smaller than a batch)."""
+    if size < 1:
+        raise ValueError("the pool is empty")
+    buffer = torch.empty(0, dtype=torch.long)
+    while True:
+        while len(buffer) < batch:
+            buffer = torch.cat([buffer, torch.randperm(size, generator=generator)])
+        yield buffer[:batch]
+        buffer = buffer[batch:]
+
+
 class RandomRays(IterableDataset):
     """An endless stream of batches of random training rays from a shuffled pool of all training pixels.
 
     Epoch-style: every pixel is drawn once before the pool is reshuffled. Each distributed rank and data-loader
     worker draws from its own generator, so they see different rays. With a sparse-depth pool, every batch also
-    carries `sparse_rays_per_batch` rays drawn (with replacement) from it (`TrainingBatch.sparse`).
+    carries `sparse_rays_per_batch` rays from it (`TrainingBatch.sparse`), drawn epoch-style as well: every SfM
+    observation once before that pool is reshuffled (batches run across reshuffles when the pool is small).
     """
 
     def __init__(
@@ -58,9 +73,9 @@ class RandomRays(IterableDataset):
         self.views, self.rays_per_batch, self.near, self.seed = views, rays_per_batch, near, seed
         self.sparse, self.sparse_rays_per_batch = sparse, sparse_rays_per_batch if sparse is not None else 0
 
-    def sparse_batch(self, generator: torch.Generator) -> SparseDepthBatch:
+    def sparse_batch(self, index: torch.Tensor) -> SparseDepthBatch:
+        """The sparse-depth rays of pool entries `index` [R]."""
         assert self.sparse is not None
-        index = torch.randint(len(self.sparse), (self.sparse_rays_per_batch,), generator=generator)
         view, uv = self.sparse.view[index], self.sparse.uv[index]
         # The keypoint's nearest pixel colour (no loss uses it; the batch type has colours).
         u = uv[:, 0].round().long().clamp(0, self.views.width - 1)
@@ -72,6 +87,8 @@ class RandomRays(IterableDataset):
     def __iter__(self) -> Iterator[TrainingBatch]:
         worker = get_worker_info()
         generator = torch.Generator().manual_seed(self.seed + 1000 * _rank() + (worker.id if worker else 0))
+        sparse = shuffled_pool(len(self.sparse), self.sparse_rays_per_batch, generator) if self.sparse_rays_per_batch \
+            else None
         h, w = self.views.height, self.views.width
         num_pixels = len(self.views) * h * w
         while True:
@@ -82,8 +99,7 @@ class RandomRays(IterableDataset):
                 uv = torch.stack([pixel % w, pixel // w], dim=-1)
                 rgb = self.views.images[view, uv[:, 1], uv[:, 0]]
                 random = RayBatch(self.views.rays(view, uv, self.near), rgb, view, uv)
-                sparse = self.sparse_batch(generator) if self.sparse_rays_per_batch else None
-                yield TrainingBatch(random, sparse)
+                yield TrainingBatch(random, None if sparse is None else self.sparse_batch(next(sparse)))
 
 
 class Frames(Dataset):

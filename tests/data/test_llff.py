@@ -6,7 +6,7 @@ import torch
 
 from simplenerf.data.llff import LLFFDataModule, llff_split, load_llff_scene
 from simplenerf.errors import DataError
-from simplenerf.geometry.rays import RayBundle, ndc_to_metric_t, project
+from simplenerf.geometry.rays import ndc_to_metric_t, project
 from tests.conftest import require_shared
 
 # SPEC 6: frame counts and the paper's train frames (original frame numbers).

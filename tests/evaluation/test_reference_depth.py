@@ -10,7 +10,7 @@ from torch import nn
 from simplenerf.data.llff import LLFFDataModule, load_llff_scene
 from simplenerf.errors import DataError
 from simplenerf.evaluation.reference_depth import export_reference_depth
-from simplenerf.model.nerf import NeRF, mlp_nerf
+from simplenerf.model.nerf import mlp_nerf
 
 
 def test_export_writes_every_frame_and_loads_back_scaled(synthetic_scene, tmp_path):

@@ -2,7 +2,7 @@ import math
 
 import torch
 
-from simplenerf.geometry.rays import RayBundle, make_rays, ndc_rays, ndc_to_metric_t, pixel_rays, project
+from simplenerf.geometry.rays import make_rays, ndc_rays, ndc_to_metric_t, pixel_rays, project
 
 K = torch.tensor([[[50.0, 0.0, 32.0], [0.0, 50.0, 24.0], [0.0, 0.0, 1.0]]])
 

@@ -25,11 +25,13 @@ class Samples:
     positions: torch.Tensor  # [R, S, 3] the points in NDC
     directions: torch.Tensor  # [R, 3] unit world-space view directions
     _encodings: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
+    _parent: tuple[Samples, slice] | None = field(default=None, repr=False)  # a range of these rays (`__getitem__`)
 
     def __getitem__(self, index: slice) -> Samples:
-        """The samples of a subset of the rays (encodings are recomputed on use)."""
+        """The samples of a range of the rays. Their encodings are slices (views) of these samples' encodings,
+        computed here on first use, so pieces of one batch share one encoding with every field at the same points."""
         return Samples(self.t[index], self.t_metric[index], self.delta[index], self.positions[index],
-                       self.directions[index])
+                       self.directions[index], _parent=(self, index))
 
     def encoded_positions(self, bands: int) -> torch.Tensor:
         """gamma(p, 0, bands) of the points: [R, S, 3 (2 bands + 1)]."""
@@ -40,6 +42,9 @@ class Samples:
         return self._encoding("directions", self.directions, bands)
 
     def _encoding(self, name: str, x: torch.Tensor, bands: int) -> torch.Tensor:
+        if self._parent is not None:
+            parent, index = self._parent
+            return parent._encoding(name, getattr(parent, name), bands)[index]
         # gamma's blocks are ordered by frequency, so fewer bands are a leading slice of the cached encoding.
         cached = self._encodings.get(name)
         if cached is None or cached.shape[-1] < encoded_dim(3, bands):

@@ -52,3 +52,19 @@ def test_gradients_reach_both_fields():
     (out.coarse.rgb.sum() + out.fine.rgb.sum()).backward()
     assert nerf.coarse.trunk[0].weight.grad.abs().sum() > 0
     assert nerf.fine.trunk[0].weight.grad.abs().sum() > 0
+
+
+def test_field_chunks_give_the_same_renders_and_share_one_encoding():
+    whole, chunked = small_nerf(), small_nerf()
+    chunked.field_chunk = 16 * 5  # 5 rays of 16 coarse samples per field call
+    r = rays()
+    torch.manual_seed(1)
+    a = whole(r, randomized=True)
+    torch.manual_seed(1)
+    b = chunked(r, randomized=True)
+    assert torch.allclose(a.coarse.rgb, b.coarse.rgb, atol=1e-6)
+    assert torch.allclose(a.fine.depth, b.fine.depth, atol=1e-5)
+    # The pieces' encodings are views of one encoding of all the samples, computed once.
+    piece = b.coarse_samples[0:5]
+    assert piece.encoded_positions(10).data_ptr() == b.coarse_samples.encoded_positions(10).data_ptr()
+    assert torch.equal(piece.encoded_positions(10), b.coarse_samples.encoded_positions(10)[0:5])

@@ -61,7 +61,9 @@ def test_paper_config_keeps_paper_settings():
         assert field.class_path == "simplenerf.model.fields.RadianceField"
         f = field.init_args
         assert (f.point_bands, f.view_bands, f.num_layers, f.width, f.skip_layer) == (10, 4, 8, 256, 5)
-    assert cfg.model.lr == 5e-4 and cfg.trainer.max_steps == 100000
+    assert cfg.model.optimizer.class_path == "torch.optim.Adam" and cfg.model.optimizer.init_args.lr == 5e-4
+    assert cfg.model.lr_scheduler.init_args.decay_rate == 0.1 and cfg.model.lr_scheduler.init_args.decay_steps == 250000
+    assert cfg.trainer.max_steps == 100000
     assert cfg.data.init_args.factor == 4 and cfg.data.init_args.rays_per_batch == 2048
 
 

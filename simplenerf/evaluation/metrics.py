@@ -1,21 +1,26 @@
-"""Evaluation metrics: PSNR, SSIM and LPIPS on 8-bit images, depth MAE and depth SROCC.
+"""Evaluation metrics: PSNR, SSIM and LPIPS on 8-bit images, depth MAE and depth SROCC, full-frame and masked.
 
 Image conventions: images are channels-last float tensors in [0, 1], batched as [B, H, W, 3] (a single frame,
 [H, W, 3], is what `evaluate_frame` takes). Before PSNR, SSIM and LPIPS, prediction and target are quantised the way
 a saved PNG would be, round(clip(x, 0, 1) * 255), so that the reported numbers can be reproduced from stored images.
 
-Definitions (from the project SPEC):
+Definitions (SPEC 7, checked line by line against the authors' evaluation code, README "Evaluation protocol"):
 - PSNR: 10 log10(255^2 / MSE) per frame; with a mask the MSE runs over the masked pixels only. Identical images would
   give +inf, which is capped at `PSNR_CAP` (100 dB), full-frame and masked alike, so that means over frames stay finite
   and a perfect frame always reports exactly `PSNR_CAP`.
-- SSIM: 11x11 Gaussian window with sigma 1.5, K1 = 0.01, K2 = 0.03, data range 255, population (biased) local
-  variances and covariance, averaged over the 'valid' window positions (no padding) and over channels.
-  torchmetrics' SSIM is not used: it reflect-pads the images and averages over the padded full-size map, which
-  differs from the 'valid' definition.
-- Depth MAE: mean(|gt - pred|) / median(gt) over the valid pixels, without any scale/shift alignment.
-- Depth SROCC: Spearman's rank correlation over the valid pixels, ties receiving average ranks (as scipy).
-- Masked scores (SPEC 7, `frame_scores`): PSNR and the depth metrics over the mask's pixels; SSIM and LPIPS of the
-  prediction with every pixel outside the mask replaced by the ground truth.
+- SSIM map (`ssim_map`): skimage's `structural_similarity(..., gaussian_weights=True, sigma=1.5,
+  use_sample_covariance=False, full=True)` on 8-bit images: per channel, local means, variances and covariance under
+  a Gaussian of sigma 1.5 truncated at 3.5 sigma (11 taps, normalised), population (biased) statistics, K1 = 0.01,
+  K2 = 0.03, data range 255. The map has the image's size: near the borders the window reaches outside the image,
+  which is mirrored (scipy.ndimage's mode 'reflect': d c b a | a b c d | d c b a, the edge pixel repeated).
+- SSIM (`ssim`): the mean of the map without its 5-pixel border (skimage's crop by (win_size - 1) // 2), i.e. over
+  the window positions that lie entirely inside the image, and over channels.
+- Masked SSIM (`masked_ssim`): the prediction with every pixel outside the mask replaced by the ground truth, its SSIM
+  map against the ground truth, averaged over the mask's pixels (border included) and channels.
+- Depth MAE: mean(|gt - pred|) / median(gt) without any scale/shift alignment; with a mask the mean runs over the
+  masked pixels but the median is that of the whole frame's reference depth.
+- Depth SROCC: Spearman's rank correlation over the pixels (masked: the masked pixels), ties receiving average ranks.
+- Masked LPIPS: LPIPS of the prediction with every pixel outside the mask replaced by the ground truth.
 
 The accumulation runs in float64 (float32 on MPS, which has no float64): SSIM's local variances E[x^2] - E[x]^2 on
 values up to 255 cancel badly in float32, and evaluation cost is negligible next to rendering.
@@ -89,36 +94,81 @@ def _gaussian_window(size: int, sigma: float, like: torch.Tensor) -> torch.Tenso
     return window / window.sum()
 
 
-def ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """SSIM of 8-bit-quantised images (definition in the module docstring).
+def _mirror_indices(n: int, pad: int, device: torch.device) -> torch.Tensor:
+    """Indices [n + 2 pad] that extend 0 .. n-1 by `pad` on both sides as scipy.ndimage's mode 'reflect'."""
+    i = torch.remainder(torch.arange(-pad, n + pad, device=device), 2 * n)
+    return torch.where(i >= n, 2 * n - 1 - i, i)
+
+
+def _check_ssim_size(pred: torch.Tensor) -> None:
+    if min(pred.shape[1], pred.shape[2]) < SSIM_WINDOW:
+        raise ValueError(f"SSIM needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW}, got {tuple(pred.shape[1:3])}")
+
+
+def ssim_map(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """SSIM at every pixel of 8-bit-quantised images, mirrored at the borders (definition in the module docstring).
 
     Args:
         pred: [B, H, W, 3] in [0, 1], with H, W >= 11.
         target: [B, H, W, 3] in [0, 1].
 
     Returns:
-        [B] SSIM per frame, averaged over valid window positions and channels.
+        [B, H, W, 3] SSIM per pixel and channel, in the work dtype (float64; float32 on MPS).
     """
     _check_images(pred, target)
-    if min(pred.shape[1], pred.shape[2]) < SSIM_WINDOW:
-        raise ValueError(f"SSIM needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW}, got {tuple(pred.shape[1:3])}")
+    _check_ssim_size(pred)
     x = quantize_8bit(pred).permute(0, 3, 1, 2)  # [B, 3, H, W]
     y = quantize_8bit(target.to(pred.device)).permute(0, 3, 1, 2)
-    channels = x.shape[1]
+    channels, (h, w) = x.shape[1], x.shape[2:]
     stacked = torch.cat([x, y, x * x, y * y, x * y], dim=1)  # [B, 5C, H, W]
     window = _gaussian_window(SSIM_WINDOW, SSIM_SIGMA, stacked)
-    groups = stacked.shape[1]
-    # The 2-D Gaussian is separable: two 1-D depthwise passes without padding give the 'valid' weighted means.
-    blurred = F.conv2d(stacked, window.view(1, 1, 1, -1).expand(groups, 1, 1, SSIM_WINDOW), groups=groups)
-    blurred = F.conv2d(blurred, window.view(1, 1, -1, 1).expand(groups, 1, SSIM_WINDOW, 1), groups=groups)
+    groups, pad = stacked.shape[1], SSIM_WINDOW // 2
+    # The 2-D Gaussian is separable: mirror-pad one axis, one 1-D depthwise 'valid' pass, then the other axis.
+    padded = stacked.index_select(3, _mirror_indices(w, pad, stacked.device))
+    blurred = F.conv2d(padded, window.view(1, 1, 1, -1).expand(groups, 1, 1, SSIM_WINDOW), groups=groups)
+    padded = blurred.index_select(2, _mirror_indices(h, pad, stacked.device))
+    blurred = F.conv2d(padded, window.view(1, 1, -1, 1).expand(groups, 1, SSIM_WINDOW, 1), groups=groups)
     mu_x, mu_y, e_xx, e_yy, e_xy = blurred.split(channels, dim=1)
     var_x = e_xx - mu_x**2
     var_y = e_yy - mu_y**2
     cov_xy = e_xy - mu_x * mu_y
     c1 = (SSIM_K1 * _DATA_RANGE) ** 2
     c2 = (SSIM_K2 * _DATA_RANGE) ** 2
-    ssim_map = ((2 * mu_x * mu_y + c1) * (2 * cov_xy + c2)) / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))
-    return ssim_map.mean(dim=(1, 2, 3))
+    values = ((2 * mu_x * mu_y + c1) * (2 * cov_xy + c2)) / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))
+    return values.permute(0, 2, 3, 1)
+
+
+def ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """SSIM of 8-bit-quantised images: the mean of `ssim_map` without its 5-pixel border, over pixels and channels.
+
+    Args:
+        pred: [B, H, W, 3] in [0, 1], with H, W >= 11.
+        target: [B, H, W, 3] in [0, 1].
+
+    Returns:
+        [B] SSIM per frame.
+    """
+    pad = SSIM_WINDOW // 2
+    return ssim_map(pred, target)[:, pad:-pad, pad:-pad].mean(dim=(1, 2, 3))
+
+
+def masked_ssim(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, fill: bool = True) -> torch.Tensor:
+    """SSIM over a mask: the mean of the SSIM map over the mask's pixels (border pixels included) and channels.
+
+    Args:
+        pred: [B, H, W, 3] in [0, 1], with H, W >= 11.
+        target: [B, H, W, 3] in [0, 1].
+        mask: [B, H, W] bool, True on the evaluated pixels; an empty mask gives NaN.
+        fill: replace the prediction outside the mask by the target before computing the map (the authors'
+            evaluation, whose numbers the paper reports); False: the map of the prediction as it is.
+
+    Returns:
+        [B] masked SSIM per frame.
+    """
+    mask = mask.to(pred.device)
+    values = ssim_map(fill_unmasked(pred, target, mask) if fill else pred, target)  # [B, H, W, 3]
+    weight = mask.to(values.dtype)[..., None]  # [B, H, W, 1]
+    return (values * weight).sum(dim=(1, 2, 3)) / (weight.sum(dim=(1, 2, 3)) * values.shape[-1])
 
 
 def lpips(pred: torch.Tensor, target: torch.Tensor, net: LPIPS) -> torch.Tensor:
@@ -170,18 +220,20 @@ def _median(x: torch.Tensor) -> torch.Tensor:
 
 
 def depth_mae(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-    """mean(|gt - pred|) / median(gt) over valid pixels (all, or those in `mask`); no alignment.
+    """mean(|gt - pred|) / median(gt), no alignment; with a mask, the mean over the masked pixels and the median of
+    the whole reference depth map (as the authors' evaluation normalises).
 
     Args:
         pred: [H, W] (or any shape) predicted depth.
         gt: ground-truth depth with as many elements as pred.
-        mask: optional bool mask with as many elements; True marks valid pixels.
+        mask: optional bool mask with as many elements; True marks the pixels the mean runs over.
 
     Returns:
         0-dim tensor.
     """
     p, g = _valid_depths(pred, gt, mask)
-    return (g - p).abs().mean() / _median(g)
+    scale = _median(gt.reshape(-1).to(device=g.device, dtype=g.dtype))
+    return (g - p).abs().mean() / scale
 
 
 def _average_ranks(x: torch.Tensor) -> torch.Tensor:
@@ -233,8 +285,9 @@ def evaluate_frame(
 ) -> FrameMetrics:
     """All metrics of one frame.
 
-    With a mask, PSNR averages over masked pixels, SSIM and LPIPS compare `fill_unmasked(pred, gt, mask)` with gt
-    (unmasked pixels then agree exactly), and the depth metrics use masked pixels only.
+    With a mask: PSNR over the masked pixels; SSIM = `masked_ssim` (the SSIM map of `fill_unmasked(pred, gt, mask)`
+    against gt, averaged over the mask); LPIPS of `fill_unmasked(pred, gt, mask)` against gt; depth MAE over the
+    masked pixels, normalised by the whole frame's median reference depth; SROCC over the masked pixels.
 
     Args:
         pred_rgb: [H, W, 3] in [0, 1], any float dtype and device.
@@ -247,13 +300,13 @@ def evaluate_frame(
     pred = pred_rgb[None]
     gt = gt_rgb[None].to(pred.device)
     batch_mask = None if mask is None else mask[None].to(pred.device)
-    image_for_structure = pred if batch_mask is None else fill_unmasked(pred, gt, batch_mask)
-    result = FrameMetrics(
-        psnr=float(psnr(pred, gt, batch_mask)[0]),
-        ssim=float(ssim(image_for_structure, gt)[0]),
-    )
+    if batch_mask is None:
+        filled, structure = pred, ssim(pred, gt)
+    else:
+        filled, structure = fill_unmasked(pred, gt, batch_mask), masked_ssim(pred, gt, batch_mask)
+    result = FrameMetrics(psnr=float(psnr(pred, gt, batch_mask)[0]), ssim=float(structure[0]))
     if lpips_net is not None:
-        result.lpips = float(lpips(image_for_structure, gt, lpips_net)[0])
+        result.lpips = float(lpips(filled, gt, lpips_net)[0])
     if pred_depth is not None and gt_depth is not None:
         result.depth_mae = float(depth_mae(pred_depth, gt_depth, mask))
         result.depth_srocc = float(depth_srocc(pred_depth, gt_depth, mask))
@@ -301,7 +354,9 @@ __all__ = [
     "fill_unmasked",
     "frame_scores",
     "lpips",
+    "masked_ssim",
     "psnr",
     "quantize_8bit",
     "ssim",
+    "ssim_map",
 ]

@@ -1,4 +1,5 @@
-"""The paper's published scores, as data: reference rows for `tools/results_table.py --paper`.
+"""The paper's published scores: the printed tables as data (reference rows for `tools/results_table.py --paper`), and a
+reader of the authors' per-frame scores (`read_release_folder`), which the printed means are the frame means of.
 
 Numbers are strings exactly as printed (so "0.14" keeps its two decimals and a test can compare them with the .tex);
 `float()` them to compute. Keys follow the names of `test/summary.json`: `masked_lpips`, `masked_ssim`, `masked_psnr`,
@@ -14,7 +15,13 @@ marked with that source.
 
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from simplenerf.errors import DataError
 
 # The scenes the published means are over (SPEC section 6).
 LLFF_SCENES = ("fern", "flower", "fortress", "horns", "leaves", "orchids", "room", "trex")
@@ -121,3 +128,81 @@ TABLES = {
     "realestate-ablations": _ablation_table("tab:quantitative-ablations",
                                             "Table 3 (ablations, RealEstate-10K), masked", REALESTATE_SCENES, 0),
 }
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# The authors' per-frame scores (their release's runs/testing/<test>/, copied to ../shared/reference_scores): a folder
+# holds QA_Scores.json and QA_Scores/{predicted_frames,predicted_depths}/<Metric><NN>_FrameWise.csv, one row per test
+# frame (scene, frame number, score rounded to 4 decimals). QA_Scores.json holds, per metric, numpy.round(numpy.mean(
+# the rounded frame scores of ALL scenes), 4): the paper's table values are means over frames, not over scene means.
+
+RELEASE_GROUPS = ("predicted_frames", "predicted_depths")
+"""The sub-folders of a release folder's QA_Scores/ (image metrics, depth metrics)."""
+
+RELEASE_KEYS = {"PSNR": "psnr", "SSIM": "ssim", "LPIPS": "lpips", "DepthMAE": "depth_mae", "DepthSROCC": "depth_srocc"}
+"""Release metric names (without the `Masked` prefix and the 2-digit suffix) -> summary keys. The release's RMSE,
+DepthRMSE and their masked versions have no summary key: they are read but not tabulated."""
+
+RELEASE_VIEWS = {"test1011": 2, "test1021": 3, "test1031": 4, "test0011": 2, "test0021": 3, "test0031": 4}
+"""Train views of the release's SimpleNeRF test folders (../shared/reference_scores/README.md)."""
+
+
+@dataclass(frozen=True)
+class ReleaseFrameScores:
+    """One metric of a release folder: per test frame, its scene, frame number and score, in file order."""
+
+    group: str  # "predicted_frames" or "predicted_depths"
+    metric: str  # as the release names it, e.g. "MaskedSSIM02"
+    scenes: tuple[str, ...]
+    frames: tuple[int, ...]
+    values: tuple[float, ...]
+
+    @property
+    def key(self) -> str | None:
+        """The summary key (`masked_ssim`, ...), or None for the release's RMSE metrics."""
+        name = self.metric.rstrip("0123456789")
+        masked = name.startswith("Masked")
+        base = RELEASE_KEYS.get(name.removeprefix("Masked"))
+        return None if base is None else ("masked_" if masked else "") + base
+
+
+def is_release_folder(path: Path) -> bool:
+    """Whether `path` is a folder in the release's test layout (it has QA_Scores/ with per-frame CSVs)."""
+    return any((Path(path) / "QA_Scores" / group).is_dir() for group in RELEASE_GROUPS)
+
+
+def read_release_folder(path: Path) -> list[ReleaseFrameScores]:
+    """Every `<Metric>_FrameWise.csv` of a release folder, in group then file-name order.
+
+    Raises:
+        DataError: if the folder has none, or a file is not three columns (scene, frame number, score) with a header.
+    """
+    path = Path(path)
+    found = []
+    for group in RELEASE_GROUPS:
+        for file in sorted((path / "QA_Scores" / group).glob("*_FrameWise.csv")):
+            with open(file, newline="") as f:
+                lines = list(csv.reader(f))
+            if not lines or len(lines[0]) != 3 or any(len(line) != 3 for line in lines[1:]):
+                raise DataError(f"{file}: expected a header and rows of scene, frame number, score")
+            try:
+                values = tuple(float(line[2]) for line in lines[1:])
+                frames = tuple(int(line[1]) for line in lines[1:])
+            except ValueError as e:
+                raise DataError(f"{file}: {e}") from None
+            found.append(ReleaseFrameScores(group, file.name.removesuffix("_FrameWise.csv"),
+                                            tuple(line[0] for line in lines[1:]), frames, values))
+    if not found:
+        raise DataError(f"{path}: no QA_Scores/{{{','.join(RELEASE_GROUPS)}}}/*_FrameWise.csv (the layout of the "
+                        "authors' runs/testing/<test>/ folders, e.g. ../shared/reference_scores/test1011)")
+    return found
+
+
+def release_summary(scores: list[ReleaseFrameScores]) -> dict[str, dict[str, float]]:
+    """The QA_Scores.json of per-frame scores: group -> metric -> the mean over all frames, rounded as the release
+    rounds it (numpy.round(mean, 4); frames without a score, NaN, are left out as pandas does)."""
+    summary: dict[str, dict[str, float]] = {}
+    for s in scores:
+        values = np.asarray(s.values, dtype=np.float64)
+        summary.setdefault(s.group, {})[s.metric] = float(np.round(np.mean(values[~np.isnan(values)]), 4))
+    return summary

@@ -1,10 +1,9 @@
 """Results tables in the layout of the paper's Tables 1-2: one row per model, a column group per number of train views
 (2 / 3 / 4), each group LPIPS ↓, SSIM ↑, PSNR ↑ (the paper's order), optionally depth MAE ↓ and SROCC ↑ after them.
 
-Pipeline: `NAME=RUN_DIR` arguments -> `expand_runs` -> `load_records` (one `Record` per tested run: model, scene,
-view count, the scores of its `test/summary.json`) -> `mean_rows` (one `Row` per model: per view count, the mean over
-the model's scenes) or `per_scene_rows` (one table per scene, the supplement's per-scene layout) -> `markdown_table`
-/ `csv_rows`. `tools/results_table.py` is the command line (`main` here).
+The rows come from `records` (tested runs and authors' release folders, averaged over ALL test frames of a model's
+scenes as the paper averages, or per scene) and from `paper_scores` (the published rows); here they are laid out as
+`markdown_table` / `csv_rows`. `tools/results_table.py` is the command line (`main` here).
 
 Names: a "key" is a field of summary.json (`masked_lpips`, `lpips`, ...); a "metric" is its base name (`lpips`); the
 scores choice maps metrics to keys: "masked" -> `masked_<metric>`, "full" -> `<metric>`, "both" -> both, shown as
@@ -21,52 +20,28 @@ from __future__ import annotations
 
 import argparse
 import csv
-import glob
-import json
-import math
 import sys
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from simplenerf.errors import DataError
 from simplenerf.evaluation.paper_scores import TABLES
+from simplenerf.evaluation.records import (
+    DEPTH_METRICS,
+    METRICS,
+    Record,
+    Row,
+    coverage_warnings,
+    expand_runs,
+    load_records,
+    mean_rows,
+    per_scene_rows,
+)
 
-METRICS = ("lpips", "ssim", "psnr")
-DEPTH_METRICS = ("depth_mae", "depth_srocc")
-# Every score of the shared summary.json format, full-frame then masked.
-KEYS = (*METRICS, *DEPTH_METRICS, *(f"masked_{m}" for m in (*METRICS, *DEPTH_METRICS)))
 HEADERS = {"lpips": "LPIPS ↓", "ssim": "SSIM ↑", "psnr": "PSNR ↑", "depth_mae": "MAE ↓", "depth_srocc": "SROCC ↑"}
 SCORES = ("masked", "full", "both")
-CSV_FIELDS = ("table", "model", "source", "n_views", "metric", "value", "scenes")
+CSV_FIELDS = ("table", "model", "source", "n_views", "metric", "value", "scenes", "frames")
 MISSING = "-"
-
-
-@dataclass(frozen=True)
-class Record:
-    """One tested run: the model name it was given, its scene, number of train views and summary scores."""
-
-    model: str
-    scene: str
-    n_views: int
-    scores: dict[str, float | None]  # every key of KEYS; None where the summary has no value
-    path: Path  # the summary.json it was read from
-
-
-@dataclass(frozen=True)
-class Row:
-    """One table row. `values[(n_views, key)]` is the mean over the scenes `scenes[n_views]` (absent: no value);
-    `printed` gives a value as published (the paper's digits), `paper` marks a published reference row."""
-
-    model: str
-    values: dict[tuple[int, str], float]
-    scenes: dict[int, tuple[str, ...]]
-    printed: dict[tuple[int, str], str] = field(default_factory=dict)
-    paper: bool = False
-
-    @property
-    def label(self) -> str:
-        return f"{self.model} (paper)" if self.paper else self.model
 
 
 def _unique(items: Iterable[str]) -> list[str]:
@@ -83,114 +58,6 @@ def score_keys(metric: str, scores: str) -> tuple[str, ...]:
     if scores not in SCORES:
         raise ValueError(f"scores must be one of {SCORES}, got {scores!r}")
     return {"masked": (f"masked_{metric}",), "full": (metric,), "both": (f"masked_{metric}", metric)}[scores]
-
-
-def expand_runs(args: Sequence[str]) -> list[tuple[str, Path]]:
-    """`NAME=RUN_DIR` arguments -> (name, run folder) pairs in the order given. A RUN_DIR with glob characters
-    (`runs/llff/*`, quoted so the shell leaves it) stands for the folders it matches, sorted by path."""
-    runs = []
-    for arg in args:
-        name, sep, pattern = arg.partition("=")
-        if not sep or not name or not pattern:
-            raise DataError(f"{arg!r}: expected NAME=RUN_DIR, e.g. SimpleNeRF=runs/fern_2v or SimpleNeRF='runs/llff/*'")
-        if any(c in pattern for c in "*?["):
-            matches = sorted(Path(p) for p in glob.glob(pattern) if Path(p).is_dir())
-            if not matches:
-                raise DataError(f"{pattern}: no run folder matches this pattern (given for {name})")
-            runs.extend((name, path) for path in matches)
-        else:
-            runs.append((name, Path(pattern)))
-    return runs
-
-
-def load_record(model: str, path: Path) -> Record:
-    """The scores of one run: `path` is a run folder (reads its test/summary.json) or its test output folder."""
-    path = Path(path)
-    file = path / "summary.json" if (path / "summary.json").is_file() else path / "test" / "summary.json"
-    if not file.is_file():
-        raise DataError(f"{file} not found: test the run first with `python -m simplenerf test --config ... "
-                        f"--ckpt_path last` (run folder {path}, given for {model})")
-    try:
-        summary = json.loads(file.read_text())
-    except json.JSONDecodeError as e:
-        raise DataError(f"{file}: not valid JSON ({e})") from None
-    if not isinstance(summary, dict):
-        raise DataError(f"{file}: expected a JSON object with the test summary")
-    scene, n_views = summary.get("scene"), summary.get("n_views")
-    if not isinstance(scene, str) or not scene or type(n_views) is not int or n_views < 1:
-        raise DataError(f"{file}: expected \"scene\" (the scene folder name) and \"n_views\" (a positive integer), "
-                        f"found scene={scene!r}, n_views={n_views!r}; re-run `python -m simplenerf test ...` with the "
-                        "current code to rewrite it")
-    scores: dict[str, float | None] = {}
-    for key in KEYS:
-        value = summary.get(key)
-        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
-            raise DataError(f"{file}: \"{key}\" should be a number or null, found {value!r}")
-        scores[key] = None if value is None else float(value)
-    return Record(model, scene, n_views, scores, file)
-
-
-def load_records(runs: Sequence[tuple[str, Path]]) -> list[Record]:
-    """The records of (model name, run folder) pairs, in order. Two runs of one model on the same scene and view
-    count are an error (which one would the table show?)."""
-    records: list[Record] = []
-    seen: dict[tuple[str, str, int], Path] = {}
-    for model, path in runs:
-        record = load_record(model, path)
-        key = (record.model, record.scene, record.n_views)
-        if key in seen:
-            raise DataError(f"{seen[key]} and {record.path} are both {model} on {record.scene} with "
-                            f"{record.n_views} views: give one of them another NAME or leave it out")
-        seen[key] = record.path
-        records.append(record)
-    return records
-
-
-def mean_rows(records: Sequence[Record]) -> list[Row]:
-    """One row per model (in order of first appearance): per view count, each score averaged over the model's scenes
-    with that view count. A score some of those scenes lack has no mean (see `coverage_warnings`)."""
-    rows = []
-    for model in _unique(r.model for r in records):
-        own = [r for r in records if r.model == model]
-        values: dict[tuple[int, str], float] = {}
-        scenes: dict[int, tuple[str, ...]] = {}
-        for n in sorted({r.n_views for r in own}):
-            group = [r for r in own if r.n_views == n]
-            scenes[n] = tuple(r.scene for r in group)
-            for key in KEYS:
-                found = [r.scores[key] for r in group if r.scores[key] is not None]
-                if found and len(found) == len(group):
-                    values[(n, key)] = math.fsum(found) / len(found)
-        rows.append(Row(model, values, scenes))
-    return rows
-
-
-def per_scene_rows(records: Sequence[Record]) -> dict[str, list[Row]]:
-    """Scene (in order of first appearance) -> one row per model with that scene's scores."""
-    return {scene: mean_rows([r for r in records if r.scene == scene]) for scene in _unique(r.scene for r in records)}
-
-
-def coverage_warnings(records: Sequence[Record], keys: Sequence[str]) -> list[str]:
-    """What makes the means of `mean_rows` not comparable: per view count, models averaged over different scene sets
-    (naming each missing (model, scene, views)); and scenes lacking a shown key that the model's other scenes have."""
-    warnings = []
-    for n in sorted({r.n_views for r in records}):
-        group = [r for r in records if r.n_views == n]
-        present = {(r.model, r.scene) for r in group}
-        missing = [(m, s) for m in _unique(r.model for r in group) for s in _unique(r.scene for r in group)
-                   if (m, s) not in present]
-        if missing:
-            warnings.append(f"{n} views: models are averaged over different scenes; missing runs: "
-                            + ", ".join(f"({m}, {s}, {n} views)" for m, s in missing))
-    for model in _unique(r.model for r in records):
-        for n in sorted({r.n_views for r in records if r.model == model}):
-            group = [r for r in records if r.model == model and r.n_views == n]
-            for r in group:
-                lacking = [k for k in keys if r.scores[k] is None and any(o.scores[k] is not None for o in group)]
-                if lacking:
-                    warnings.append(f"{model}, {n} views: {r.scene} has no {', '.join(lacking)} ({r.path}), so "
-                                    f"{'that mean is' if len(lacking) == 1 else 'those means are'} left out")
-    return warnings
 
 
 def paper_rows(table: str, scene: str | None = None) -> list[Row]:
@@ -276,8 +143,8 @@ def caption(scores: str, per_scene: bool, paper: str | None = None) -> str:
     what = {"masked": "Masked scores (pixels seen by at least two train views), as in the paper's Tables 1-2.",
             "full": "Full-frame scores.",
             "both": "Masked scores, full-frame scores in parentheses (the supplement's layout)."}[scores]
-    rows = ("One table per scene." if per_scene else
-            "Each row: the mean over the model's scenes with that number of views.")
+    rows = ("One table per scene: the means over its test frames." if per_scene else
+            "Each row: the mean over all test frames of the model's scenes with that number of views (as the paper).")
     text = f"{what} {rows} {MISSING}: no run or no score."
     if paper is not None and per_scene:
         text += (" (paper): the published per-scene numbers SPEC section 8 quotes (the supplement's per-scene tables "
@@ -295,7 +162,8 @@ def csv_rows(table: str, rows: Sequence[Row], views: Sequence[int], scores: str 
              ) -> list[dict[str, str | int]]:
     """Long format, one line per value shown: table ("mean", or the scene in per-scene mode), model, source
     ("measured" or "paper"), n_views, metric (the summary key, e.g. masked_lpips), value (full precision; the paper's
-    as printed), scenes (";"-separated, those the value averages). Cells without a value have no line."""
+    as printed), scenes (";"-separated, those the value averages), frames (how many test frames it averages; blank
+    for the paper's). Cells without a value have no line."""
     out: list[dict[str, str | int]] = []
     for row in rows:
         for n in views:
@@ -305,7 +173,7 @@ def csv_rows(table: str, rows: Sequence[Row], views: Sequence[int], scores: str 
                         value = row.printed.get((n, key), repr(row.values[(n, key)]))
                         out.append({"table": table, "model": row.model, "source": "paper" if row.paper else "measured",
                                     "n_views": n, "metric": key, "value": value,
-                                    "scenes": ";".join(row.scenes.get(n, ()))})
+                                    "scenes": ";".join(row.scenes.get(n, ())), "frames": row.frames.get((n, key), "")})
     return out
 
 
@@ -323,11 +191,15 @@ def build_parser() -> argparse.ArgumentParser:
         prog="results_table.py",
         description="Tested runs as a table in the layout of the paper's Tables 1-2 (markdown on stdout).",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="example:\n  python tools/results_table.py SimpleNeRF='runs/llff/*' DS-NeRF=runs/dsnerf_fern_2v "
-               "--paper llff --csv results.csv")
+        epilog="examples:\n  python tools/results_table.py SimpleNeRF='runs/llff/*' DS-NeRF=runs/dsnerf_fern_2v "
+               "--paper llff --csv results.csv\n"
+               "  python tools/results_table.py ../shared/reference_scores/test10{1,2,3}1 --paper llff  # the authors'"
+               " frames")
     parser.add_argument("runs", nargs="*", metavar="NAME=RUN_DIR",
                         help="a run folder (or its test/ folder) and the model name its row gets; several runs may "
-                             "share a NAME (its row averages their scenes); RUN_DIR may be a quoted glob")
+                             "share a NAME (its row averages the frames of their scenes); RUN_DIR may be a quoted "
+                             "glob, or a folder of the authors' test runs (QA_Scores/ with per-frame CSVs; NAME= "
+                             "optional, @N after it gives its number of views if its name is not one of the release's)")
     parser.add_argument("--scores", choices=SCORES, default="masked",
                         help="masked (default, the paper's main tables), full (full frame), or both: 'masked (full)'")
     parser.add_argument("--depth", action="store_true", help="add depth MAE and SROCC columns to each group")

@@ -18,11 +18,11 @@ projection:
 Since neighbouring train pixels land less than 2 test pixels apart unless the test view magnifies the train view
 2x, every test pixel of a surface the train view sees receives a point of that surface: no holes where the test view
 zooms in or rotates (rounding each point to its nearest pixel instead leaves 1-pixel holes wherever the train pixels
-land more than 1 pixel apart, e.g. 6-8% of the pixels for a 2% zoom). A surface hidden from the train view sends
-no point to the pixels where the test view sees it, so occlusions stay invisible. The authors' release splats the
-same footprints but compares one depth per pixel, the footprint-weighted mean of the landed depths under a steep
-soft z-buffer (weight / exp(50 log(1 + z) / log(1 + z_max))); the two differ only in pixels where two surfaces
-land, i.e. within a pixel of a depth edge, where the release's mean follows the nearer surface.
+land more than 1 pixel apart: 4-6% of the pixels for a 2% zoom of the synthetic scene). A surface hidden from the
+train view sends no point to the pixels where the test view sees it, so occlusions stay invisible. The authors'
+release splats the same footprints but compares one depth per pixel, the footprint-weighted mean of the landed
+depths under a steep soft z-buffer (weight / exp(50 log(1 + z) / log(1 + z_max))); the two differ only in pixels
+where two surfaces land, i.e. within a pixel of a depth edge, where the release's mean follows the nearer surface.
 
 Depth maps are [H, W] camera z-depths in scene units. Depths that are not finite or not positive are never warped and
 never match, so a pixel without reference depth is never visible.

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 
+from simplenerf.data.batches import Frame
 from simplenerf.data.llff import LLFFDataModule, load_llff_scene
 from simplenerf.errors import DataError
 from simplenerf.evaluation.evaluator import (
@@ -43,12 +44,12 @@ class GroundTruthRenderer(L.LightningModule):
         super().__init__()
         self.corrupt_outside = corrupt_outside
 
-    def test_step(self, batch: dict, batch_idx: int) -> dict[str, torch.Tensor]:
-        h, w = int(batch["height"]), int(batch["width"])
-        rgb = batch["rgb"].reshape(h, w, 3).clone()
-        depth = batch["depth"].reshape(h, w).clone() if "depth" in batch else torch.ones(h, w)
+    def test_step(self, batch: Frame, batch_idx: int) -> dict[str, torch.Tensor]:
+        h, w = batch.height, batch.width
+        rgb = batch.rgb.reshape(h, w, 3).clone()
+        depth = batch.depth.reshape(h, w).clone() if batch.depth is not None else torch.ones(h, w)
         if self.corrupt_outside is not None:
-            keep = self.corrupt_outside[int(batch["index"])]
+            keep = self.corrupt_outside[batch.index]
             rgb[~keep] = 0.0
             depth[~keep] = 2.0 * depth[~keep]
         return {"rgb": rgb, "depth": depth}
@@ -193,8 +194,9 @@ def test_cli_test_writes_the_shared_format(tmp_path) -> None:
 
 def test_ddp_test_on_two_cpu_processes_writes_each_frame_once(tmp_path) -> None:
     """3 test frames on 2 ranks: the sampler pads to 4, the outputs still hold 3 rows, written by rank 0."""
-    proc = run("test", *run_args(tmp_path), "--evaluation.lpips", "false", "--trainer.accelerator", "cpu",
-               "--trainer.devices", "2", "--trainer.strategy", "ddp")
+    run("fit", *run_args(tmp_path), "--trainer.max_steps", "1", "--data.init_args.sparse_rays_per_batch", "0")
+    proc = run("test", *run_args(tmp_path), "--ckpt_path", "last", "--evaluation.lpips", "false",
+               "--trainer.accelerator", "cpu", "--trainer.devices", "2", "--trainer.strategy", "ddp")
     assert "Starting with 2 processes" in proc.stdout + proc.stderr
     out = tmp_path / "run" / "test"
     rows = read_csv(out / "metrics.csv")

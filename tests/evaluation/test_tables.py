@@ -9,7 +9,8 @@ import pytest
 
 from simplenerf.errors import DataError
 from simplenerf.evaluation import paper_scores
-from simplenerf.evaluation.tables import KEYS, RELEASE_MODEL, expand_runs, load_records, main, mean_rows
+from simplenerf.evaluation.records import KEYS, RELEASE_MODEL, expand_runs, load_records, mean_rows
+from simplenerf.evaluation.tables import main
 from tests.conftest import REPO, require_shared
 
 # (model, scene, views) -> masked LPIPS, SSIM, PSNR, full-frame LPIPS, SSIM, PSNR, masked depth MAE, SROCC.

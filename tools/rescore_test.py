@@ -1,0 +1,64 @@
+"""Scores a tested run again from its saved outputs with the current definitions (logic: simplenerf.evaluation.rescore),
+without rendering, e.g.
+
+    python tools/rescore_test.py runs/demo
+    python tools/rescore_test.py runs/cpu/fern_simplenerf \
+        --lpips-weights ../shared/data/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz
+
+The ground truth and the train views come from the run's scene, read with the config the test ran with
+(`<run>/test/config.yaml`; another with --config, overrides after `--`). Prints a table: the old scores (the run's
+metrics.csv), the frames scored again over the saved masks (the new metric definitions alone) and over masks computed
+now (definitions and masks); writes them to `<run>/test/rescored/` (--out): saved_masks.{csv,json}, new.{csv,json},
+mask/<frame>.png. The run's own files are left as they are.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from simplenerf.cli import load_for_tool, run_tool, split_overrides
+from simplenerf.evaluation.lpips import LPIPS
+from simplenerf.evaluation.rescore import comparison_table, find_test_folder, rescore_run
+from simplenerf.evaluation.visibility import MIN_VIEWS
+
+# Keys of a `test` config that describe that run, not the model or data, and that a config without subcommand rejects.
+RUN_ONLY_KEYS = ("ckpt_path", "verbose", "weights_only")
+
+
+def main() -> None:
+    own, overrides = split_overrides(sys.argv[1:])
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run", help="a run folder tested by `python -m simplenerf test`, or its test/ folder")
+    parser.add_argument("--config", action="append", help="config file(s) of the run (default: <test>/config.yaml)")
+    parser.add_argument("--lpips-weights", help="LPIPS weights (default: $SIMPLENERF_LPIPS_WEIGHTS, the torch cache)")
+    parser.add_argument("--no-lpips", action="store_true", help="leave LPIPS out")
+    parser.add_argument("--min-views", type=int, default=MIN_VIEWS, help="train views that must see a pixel")
+    parser.add_argument("--out", type=Path, help="output folder (default: <test>/rescored)")
+    args = parser.parse_args(own)
+    folder = find_test_folder(args.run)
+    out = args.out or folder / "rescored"
+    configs = args.config or [str(_without_run_keys(folder / "config.yaml", out))]
+    cli = load_for_tool(configs, overrides)
+    lpips_net = None if args.no_lpips else LPIPS.from_weights(args.lpips_weights)
+    results = rescore_run(folder, cli.datamodule.scene, lpips_net, out, args.min_views)
+    print(f"{folder}: old = its metrics.csv, saved_masks = scored again over its masks, new = over masks computed now")
+    print(comparison_table(results))
+    print(f"written to {out}")
+
+
+def _without_run_keys(config: Path, out: Path) -> Path:
+    """`config` without the top-level keys of `RUN_ONLY_KEYS`, as `<out>/config.yaml`."""
+    if not config.is_file():
+        sys.exit(f"rescore_test: error: {config} not found: give the run's config with --config")
+    lines = config.read_text().splitlines(keepends=True)
+    kept = [line for line in lines if not line.startswith(tuple(f"{key}:" for key in RUN_ONLY_KEYS))]
+    out.mkdir(parents=True, exist_ok=True)
+    copy = out / "config.yaml"
+    copy.write_text("".join(kept))
+    return copy
+
+
+if __name__ == "__main__":
+    run_tool(main, "rescore_test")

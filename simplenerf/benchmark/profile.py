@@ -1,0 +1,79 @@
+"""One training iteration under torch.profiler: where the time goes (top operators by self CPU time, page faults)."""
+
+from __future__ import annotations
+
+import lightning as L
+import torch
+
+from simplenerf.benchmark.measure import StepTimer, _trainer, peak_rss_gib
+
+
+def profile_training(
+    model: L.LightningModule,
+    datamodule: L.LightningDataModule,
+    warmup: int,
+    precision: str,
+    top: int = 25,
+    accelerator: str = "auto",
+) -> dict:
+    """Runs `warmup` iterations, then one under `torch.profiler`; returns the iteration's wall, user and system time
+    and page faults, and the `top` operators by self CPU time (each: name, calls, self and total CPU seconds)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    class Profiled(StepTimer):
+        def __init__(self) -> None:
+            super().__init__()
+            self.profiler: profile | None = None
+
+        def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+            if batch_idx == warmup:
+                activities = [ProfilerActivity.CPU]
+                if pl_module.device.type == "cuda":
+                    activities.append(ProfilerActivity.CUDA)
+                self.profiler = profile(activities=activities)
+                self.profiler.__enter__()
+            super().on_train_batch_start(trainer, pl_module, batch, batch_idx)
+
+        def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+            super().on_train_batch_end(trainer, pl_module, outputs, batch, batch_idx)
+            if batch_idx == warmup and self.profiler is not None:
+                self.profiler.__exit__(None, None, None)
+
+    timer = Profiled()
+    trainer = _trainer(precision, accelerator, 1, max_steps=warmup + 1, callbacks=[timer])
+    trainer.fit(model, datamodule)
+    assert timer.profiler is not None, "the profiled iteration did not run"
+    events = timer.profiler.key_averages()
+    total_self = sum(e.self_cpu_time_total for e in events)
+    rows = sorted(events, key=lambda e: e.self_cpu_time_total, reverse=True)[:top]
+    return {
+        "iteration_s": timer.iteration_s[warmup],
+        "step_s": timer.step_s[warmup],
+        "user_s": timer.user_s[warmup],
+        "sys_s": timer.sys_s[warmup],
+        "minor_faults": timer.minor_faults[warmup],
+        # below 1: the process waited for a CPU (a shared machine); the profiler's times are wall-clock times
+        "cpu_over_wall": (timer.user_s[warmup] + timer.sys_s[warmup]) / timer.iteration_s[warmup],
+        "warmup_s": [round(v, 4) for v in timer.iteration_s[:warmup]],
+        "profiled_self_cpu_s": total_self / 1e6,
+        "threads": torch.get_num_threads(),
+        "peak_rss_gib": peak_rss_gib(),
+        "top_ops": [
+            {"op": e.key, "calls": e.count, "self_cpu_s": e.self_cpu_time_total / 1e6,
+             "self_share": e.self_cpu_time_total / max(total_self, 1), "cpu_total_s": e.cpu_time_total / 1e6}
+            for e in rows
+        ],
+    }
+
+
+def profile_table(result: dict) -> str:
+    """The top operators of `profile_training` as a markdown table."""
+    lines = ["| op | calls | self CPU s | share of self CPU | CPU total s (incl. children) |", "|---|---|---|---|---|"]
+    for row in result["top_ops"]:
+        lines.append(f"| `{row['op']}` | {row['calls']} | {row['self_cpu_s']:.3f} | {100 * row['self_share']:.1f}% "
+                     f"| {row['cpu_total_s']:.3f} |")
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Command lines of benchmarks/train_step.py, benchmarks/render.py and benchmarks/profile_step.py

@@ -1,0 +1,124 @@
+"""Speed measurement (simplenerf.benchmark): the counting formulas by hand, frame cropping, the side-by-side table, and
+one short run of each benchmark through the real CLI."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import pytest
+import torch
+from torch import nn
+
+from simplenerf.benchmark import (
+    crop_rows,
+    field_evaluations_per_ray,
+    linear_macs,
+    matmul_flop_per_ray,
+    render_main,
+    side_by_side_table,
+    train_step_main,
+)
+from tests.test_cli import run_args
+
+
+class _Aug(nn.Module):
+    def __init__(self, stage: str, width: int = 4) -> None:
+        super().__init__()
+        self.stage, self.field = stage, nn.Linear(3, width)
+
+
+class _Nerf(nn.Module):
+    def __init__(self) -> None:
+        super().__init__()
+        self.num_coarse, self.num_fine = 64, 128
+        self.coarse, self.fine = nn.Sequential(nn.Linear(3, 5), nn.ReLU(), nn.Linear(5, 2)), nn.Linear(3, 7)
+
+
+class _Model(nn.Module):
+    def __init__(self, stages: list[str]) -> None:
+        super().__init__()
+        self.nerf, self.augmentations = _Nerf(), nn.ModuleList(_Aug(s) for s in stages)
+
+
+def test_field_evaluations_per_ray_follows_the_formula():
+    # coarse x (1 + coarse augmentations) + (coarse + fine) x (1 + fine augmentations)
+    assert field_evaluations_per_ray(_Model(["coarse", "coarse"])) == 64 * 3 + 192  # the paper's 384
+    assert field_evaluations_per_ray(_Model([])) == 64 + 192
+    assert field_evaluations_per_ray(_Model(["coarse", "fine"])) == 64 * 2 + 192 * 2
+    assert field_evaluations_per_ray(_Model(["coarse", "coarse"]), training=False) == 256
+
+
+def test_matmul_flop_counts_linear_layers_per_sample():
+    model = _Model(["coarse"])
+    assert linear_macs(model.nerf.coarse) == 3 * 5 + 5 * 2
+    forward = 2 * (64 * 25 + 192 * 21)
+    assert matmul_flop_per_ray(model, training=False) == forward
+    assert matmul_flop_per_ray(model) == 3 * (forward + 2 * 64 * 12)
+
+
+@dataclass
+class _Frame:
+    origins: torch.Tensor
+    height: int
+    width: int
+    index: int
+
+
+def test_crop_rows_keeps_the_top_rows_of_dicts_and_dataclasses():
+    pixels = torch.arange(4 * 3 * 2).reshape(12, 2)
+    item = {"origins": pixels, "rgb": pixels + 1, "height": 4, "width": 3, "name": "x", "pose": torch.eye(4)}
+    cut = crop_rows(item, 2)
+    assert cut["height"] == 2 and cut["width"] == 3 and cut["name"] == "x"
+    assert torch.equal(cut["origins"], pixels[:6]) and torch.equal(cut["rgb"], pixels[:6] + 1)
+    assert torch.equal(cut["pose"], torch.eye(4))  # not a per-pixel tensor
+    frame = crop_rows(_Frame(pixels, 4, 3, 0), 1)
+    assert frame.height == 1 and torch.equal(frame.origins, pixels[:3])
+    with pytest.raises(TypeError, match="no height"):
+        crop_rows({"origins": pixels}, 1)
+
+
+def test_side_by_side_table_pools_runs_and_leaves_out_short_batches(tmp_path):
+    records = [{"seconds": s, "rays_rgb": 256, "rays_sd": sd, "user_s": s / 2, "sys_s": 0.5}
+               for s, sd in ((9.0, 256), (4.0, 256), (6.0, 256), (1.0, 100))]
+    release = {"variant": "B", "rays_rgb": 256, "rays_sd": 256, "discarded": 1, "peak_rss_mib": 4096,
+               "records": records}
+    (tmp_path / "release.json").write_text(json.dumps(release, indent=2))
+    ours = [{"benchmark": "train_step", "label": "B", "precision": "32-true", "tf32": False, "rays_random": 256,
+             "rays_sparse": 256, "s_per_it_all": all_s, "cpu_s_all": all_s, "peak_rss_gib": rss}
+            for all_s, rss in (([2.0], 1.5), ([2.5], 1.7))]
+    (tmp_path / "ours.json").write_text("\n".join(json.dumps(r) for r in ours) + "\n")
+    table = side_by_side_table([tmp_path / "release.json", tmp_path / "ours.json"])
+    row = table.splitlines()[2]
+    # release: iterations 2 and 3 (the first is discarded, the short batch left out) -> median 5.0; ours 2.25
+    assert row.startswith("| B | 256+256 | 32-true | 5.00 (4.00-6.00, n=2) | 2.25 (2.00-2.50, n=2) | 2.22 |")
+    assert "| 3.00 / 2.25 |" in row  # CPU seconds: release (2.0 + 0.5, 3.0 + 0.5), ours (2.0, 2.5)
+    assert row.endswith("| 4.00 | 1.50-1.70 |")
+
+
+def _tiny(tmp_path) -> list[str]:
+    """The end-to-end tests' tiny demo run, as a benchmark's arguments: its configs, then `--` and its overrides (less
+    the logger's, since benchmarks run without one)."""
+    args = run_args(tmp_path)
+    i = args.index("--trainer.logger.init_args.save_dir")
+    del args[i : i + 2]
+    configs = [a for i, a in enumerate(args) if a == "--config" or (i and args[i - 1] == "--config")]
+    overrides = [a for i, a in enumerate(args) if not (a == "--config" or (i and args[i - 1] == "--config"))]
+    return [*configs, "--", *overrides]
+
+
+def test_train_step_and_render_run_through_the_cli(tmp_path, capsys):
+    record = train_step_main(["--steps", "2", "--warmup", "1", "--label", "tiny", *_tiny(tmp_path)])
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert line == json.loads(json.dumps(record))
+    assert line["label"] == "tiny" and len(line["s_per_it_all"]) == 2 and len(line["warmup_s"]) == 1
+    assert line["rays_per_it"] == line["rays_random"] + line["rays_sparse"] > 0
+    assert line["field_evaluations_per_it"] == line["field_evaluations_per_ray"] * line["rays_per_it"]
+    assert line["rays_per_s"] == pytest.approx(line["rays_per_it"] / line["s_per_it"])
+    # no warm-up schedule: the masked depth losses are computed from the first step
+    assert {"color", "sparse_depth", "points", "views", "cfc"} <= set(line["losses"])
+    assert line["peak_rss_gib"] > 0 and line["peak_cuda_gib"] is None
+
+    record = render_main(["--frames", "1", "--rows", "5", *_tiny(tmp_path)])
+    assert record["frame_shape"][0] == 5 and record["rays_per_frame"] == 5 * record["frame_shape"][1]
+    assert record["rays_per_s"] == pytest.approx(record["rays_per_frame"] / record["s_per_frame"])

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 
 import torch
+from kornia.geometry.camera.perspective import project_points, unproject_points
 
 
 @dataclass
@@ -51,8 +52,12 @@ def pixel_grid(height: int, width: int, device: torch.device | str | None = None
     return torch.stack([u.flatten(), v.flatten()], dim=-1)
 
 
+# Our camera axes (OpenGL: right, up, back) -> kornia's / OpenCV's (right, down, forward), and back: flip y and z.
+_GL_CV_FLIP = (1.0, -1.0, -1.0)
+
+
 def pixel_rays(intrinsics: torch.Tensor, c2w: torch.Tensor, uv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """World rays through pixels.
+    """World rays through pixels (kornia's unprojection at unit OpenCV depth, turned into OpenGL axes).
 
     Args:
         intrinsics: [R, 3, 3] (or broadcastable, e.g. [1, 3, 3]).
@@ -63,16 +68,15 @@ def pixel_rays(intrinsics: torch.Tensor, c2w: torch.Tensor, uv: torch.Tensor) ->
         origins [R, 3], directions [R, 3] (un-normalised, camera-frame z = -1).
     """
     uv = uv.to(c2w.dtype)
-    fx, fy = intrinsics[..., 0, 0], intrinsics[..., 1, 1]
-    cx, cy = intrinsics[..., 0, 2], intrinsics[..., 1, 2]
-    d_cam = torch.stack([(uv[..., 0] - cx) / fx, -(uv[..., 1] - cy) / fy, -torch.ones_like(uv[..., 0])], dim=-1)
+    d_cv = unproject_points(uv, torch.ones_like(uv[..., :1]), intrinsics)  # [(u - cx) / fx, (v - cy) / fy, 1]
+    d_cam = d_cv * d_cv.new_tensor(_GL_CV_FLIP)  # [(u - cx) / fx, -(v - cy) / fy, -1]
     directions = (c2w[..., :3, :3] @ d_cam[..., None])[..., 0]
     origins = c2w[..., :3, 3].expand_as(directions)
     return origins, directions
 
 
 def project(points: torch.Tensor, intrinsics: torch.Tensor, c2w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Projects world points into a camera (inverse of `pixel_rays`).
+    """Projects world points into a camera (inverse of `pixel_rays`; the pinhole step is kornia's).
 
     Args:
         points: [R, 3] world points. intrinsics [R or 1, 3, 3], c2w [R or 1, 3, 4].
@@ -82,10 +86,8 @@ def project(points: torch.Tensor, intrinsics: torch.Tensor, c2w: torch.Tensor) -
     """
     rotation, centre = c2w[..., :3, :3], c2w[..., :3, 3]
     p_cam = ((points - centre)[..., None, :] @ rotation)[..., 0, :]  # R^T (p - c), as row vectors
-    z = -p_cam[..., 2]
-    u = intrinsics[..., 0, 0] * p_cam[..., 0] / z + intrinsics[..., 0, 2]
-    v = -intrinsics[..., 1, 1] * p_cam[..., 1] / z + intrinsics[..., 1, 2]
-    return torch.stack([u, v], dim=-1), z
+    p_cv = p_cam * p_cam.new_tensor(_GL_CV_FLIP)  # OpenCV camera frame: z = camera z-depth
+    return project_points(p_cv, intrinsics), p_cv[..., 2]
 
 
 def ndc_rays(

@@ -30,68 +30,31 @@ import logging
 import os
 import tempfile
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
 
-import cv2
 import numpy as np
-import pycolmap
 from numpy.typing import ArrayLike
 
-from simplenerf.errors import SimpleNeRFError
+from simplenerf.data.colmap import (
+    ADVICE,
+    SparseDepth,
+    SparseDepthError,
+    collect,
+    colmap_log_level,
+    extract_features,
+    log,
+    match,
+    triangulate,
+    verified_pairs,
+    write_images,
+)
 
 logger = logging.getLogger(__name__)
 
 # Bump when the output for the same inputs and options changes, so stale caches are recomputed, not reused.
 CACHE_VERSION = 1
-# OpenGL camera axes (right, up, back) -> OpenCV/COLMAP axes (right, down, forward).
-_GL_TO_CV = np.diag([1.0, -1.0, -1.0])
-_ADVICE = (
-    "Try more views, a higher resolution (e.g. images_4 instead of images_8), and check that the poses and "
-    "intrinsics are right (OpenGL c2w, scene units, intrinsics of this resolution)."
-)
-
-
-class SparseDepthError(SimpleNeRFError, RuntimeError):
-    """Sparse depth cannot be computed for these images and cameras; the message says why and what to try."""
-
-
-@dataclass
-class SparseDepth:
-    """Sparse depth of one view: M pixels with the depth of the 3D point observed there."""
-
-    pixels: np.ndarray  # [M, 2] float32, (u, v) continuous keypoint location in this project's pixel convention
-    depth: np.ndarray  # [M] float32, camera z-depth in scene units (t along the pixel's ray)
-    reprojection_error: np.ndarray  # [M] float32, mean reprojection error of the 3D point over its track, pixels
-    point_ids: np.ndarray  # [M] int64, 3D point id: the same id in two views is the same 3D point
-
-    def __len__(self) -> int:
-        return int(self.depth.shape[0])
-
-    @property
-    def pixel_indices(self) -> np.ndarray:
-        """[M, 2] int64 (column, row) of the pixel each keypoint lies on (nearest integer coordinate)."""
-        return np.rint(self.pixels).astype(np.int64)
-
-
-def colmap_cam_from_world(c2w: np.ndarray) -> np.ndarray:
-    """COLMAP's world-to-camera [3, 4] (OpenCV axes) of an OpenGL camera-to-world [3, 4]."""
-    rotation_cv = c2w[:3, :3] @ _GL_TO_CV
-    return np.concatenate([rotation_cv.T, -rotation_cv.T @ c2w[:3, 3:4]], axis=1)
-
-
-def colmap_pinhole_params(intrinsics: np.ndarray) -> list[float]:
-    """COLMAP PINHOLE [fx, fy, cx, cy] of our [3, 3] intrinsics: COLMAP's pixel centres sit at +0.5."""
-    return [
-        float(intrinsics[0, 0]),
-        float(intrinsics[1, 1]),
-        float(intrinsics[0, 2]) + 0.5,
-        float(intrinsics[1, 2]) + 0.5,
-    ]
-
-
 def compute_sparse_depth(
     images: Sequence[ArrayLike] | ArrayLike,
     intrinsics: ArrayLike,
@@ -138,21 +101,21 @@ def compute_sparse_depth(
     if min_track_length < 2:
         raise SparseDepthError(f"min_track_length must be >= 2 (a point needs two views), got {min_track_length}")
 
-    with tempfile.TemporaryDirectory(prefix="simplenerf-sfm-") as work, _colmap_log_level(verbose=progress):
+    with tempfile.TemporaryDirectory(prefix="simplenerf-sfm-") as work, colmap_log_level(verbose=progress):
         work_dir = Path(work)
         start = time.perf_counter()
-        names = _write_images(images_u8, work_dir / "images")
+        names = write_images(images_u8, work_dir / "images")
         database_path = work_dir / "database.db"
         max_size = max(max(image.shape[:2]) for image in images_u8)
-        _extract_features(
+        extract_features(
             database_path, work_dir / "images", names, intrinsics_np, max_size, max_num_features, num_threads
         )
-        _log(progress, "sparse depth: SIFT on %d images took %.1f s", len(names), time.perf_counter() - start)
+        log(progress, "sparse depth: SIFT on %d images took %.1f s", len(names), time.perf_counter() - start)
 
         start = time.perf_counter()
-        _match(database_path, guided_matching, seed, num_threads)
-        pairs = _verified_pairs(database_path, names, c2w_np)
-        _log(
+        match(database_path, guided_matching, seed, num_threads)
+        pairs = verified_pairs(database_path, names, c2w_np)
+        log(
             progress,
             "sparse depth: matching took %.1f s; %s",
             time.perf_counter() - start,
@@ -168,14 +131,14 @@ def compute_sparse_depth(
         if not any(p.num_inliers > 0 for p in pairs):
             raise SparseDepthError(
                 f"no image pair has geometrically verified SIFT matches among the {len(names)} views "
-                f"({', '.join(p.describe() for p in pairs)}), so no point can be triangulated. {_ADVICE}"
+                f"({', '.join(p.describe() for p in pairs)}), so no point can be triangulated. {ADVICE}"
             )
 
         start = time.perf_counter()
-        reconstruction = _triangulate(
+        reconstruction = triangulate(
             database_path, work_dir, names, c2w_np, min_tri_angle, max_reprojection_error, seed, num_threads
         )
-        _log(
+        log(
             progress,
             "sparse depth: triangulation took %.1f s, %d points",
             time.perf_counter() - start,
@@ -188,16 +151,16 @@ def compute_sparse_depth(
                 f"triangulation with the given poses kept 0 points from the verified matches "
                 f"({', '.join(p.describe() for p in pairs)}; largest baseline {baseline:.3g} scene units; points "
                 f"need a triangulation angle >= {min_tri_angle} deg and reprojection error <= "
-                f"{max_reprojection_error} px). Large 'off' angles mean the poses disagree with the images. {_ADVICE}"
+                f"{max_reprojection_error} px). Large 'off' angles mean the poses disagree with the images. {ADVICE}"
             )
-        views = _collect(reconstruction, names, c2w_np, min_track_length, percentile)
+        views = collect(reconstruction, names, c2w_np, min_track_length, percentile)
 
     for index, view in enumerate(views):
         if len(view) == 0:
             logger.warning("sparse depth: view %d has no triangulated point (no overlap with the other views?)", index)
     if sum(len(v) for v in views) == 0:
         raise SparseDepthError(
-            f"no 3D point is seen in at least {min_track_length} views (min_track_length). {_ADVICE}"
+            f"no 3D point is seen in at least {min_track_length} views (min_track_length). {ADVICE}"
         )
     return views
 
@@ -354,264 +317,6 @@ def _fingerprint(images: list[np.ndarray], intrinsics: np.ndarray, c2w: np.ndarr
 
 # ----------------------------------------------------------------------------------------------------------------
 # COLMAP stages
-
-
-@contextlib.contextmanager
-def _colmap_log_level(verbose: bool) -> Iterator[None]:
-    """COLMAP logs every stage at INFO through glog; keep only its errors unless asked for progress."""
-    previous = pycolmap.logging.minloglevel
-    if not verbose:
-        pycolmap.logging.minloglevel = 2
-    try:
-        yield
-    finally:
-        pycolmap.logging.minloglevel = previous
-
-
-def _log(progress: bool, message: str, *args: object) -> None:
-    logger.log(logging.INFO if progress else logging.DEBUG, message, *args)
-
-
-@contextlib.contextmanager
-def _colmap_stage(stage: str) -> Iterator[None]:
-    """Turns a failing COLMAP check (raised by pycolmap as a bare RuntimeError/ValueError) into a SparseDepthError."""
-    try:
-        yield
-    except SparseDepthError:
-        raise
-    except (RuntimeError, ValueError) as e:
-        raise SparseDepthError(f"COLMAP failed during {stage}: {e}. {_ADVICE}") from e
-
-
-def _write_images(images: list[np.ndarray], folder: Path) -> list[str]:
-    folder.mkdir()
-    names = []
-    for index, image in enumerate(images):
-        name = f"{index:04d}.png"
-        # PNG is lossless, so SIFT sees exactly the training pixels.
-        if not cv2.imwrite(str(folder / name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
-            raise SparseDepthError(f"cannot write {folder / name} for COLMAP")
-        names.append(name)
-    return names
-
-
-def _extract_features(
-    database_path: Path,
-    image_dir: Path,
-    names: list[str],
-    intrinsics: np.ndarray,
-    max_image_size: int,
-    max_num_features: int,
-    num_threads: int,
-) -> None:
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "PINHOLE"
-    # One camera per image, created with view 0's parameters and then overwritten with each view's own below.
-    reader.camera_params = ",".join(str(p) for p in colmap_pinhole_params(intrinsics[0]))
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = num_threads
-    extraction.sift.max_num_features = max_num_features
-    # Never downscale: keypoints must be as precise as the training pixels.
-    extraction.max_image_size = max_image_size
-    with _colmap_stage("SIFT feature extraction"):
-        pycolmap.extract_features(
-            database_path,
-            image_dir,
-            image_names=names,
-            camera_mode=pycolmap.CameraMode.PER_IMAGE,
-            reader_options=reader,
-            extraction_options=extraction,
-            device=pycolmap.Device.cpu,
-        )
-    database = pycolmap.Database.open(database_path)
-    try:
-        by_name = {image.name: image for image in database.read_all_images()}
-        for index, name in enumerate(names):
-            if name not in by_name:
-                raise SparseDepthError(f"COLMAP could not read image {index} ({name})")
-            image = by_name[name]
-            if database.num_keypoints_for_image(image.image_id) == 0:
-                raise SparseDepthError(
-                    f"image {index} has no SIFT features: textureless (e.g. a constant colour), blank or too small? "
-                    f"Sparse depth needs textured images."
-                )
-            camera = database.read_camera(image.camera_id)
-            camera.params = colmap_pinhole_params(intrinsics[index])
-            database.update_camera(camera)
-    finally:
-        database.close()
-
-
-def _match(database_path: Path, guided_matching: bool, seed: int, num_threads: int) -> None:
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = num_threads
-    matching.guided_matching = guided_matching
-    verification = pycolmap.TwoViewGeometryOptions()
-    verification.ransac.random_seed = seed
-    # Only for the diagnostics (_PairReport): COLMAP's own relative pose, to compare with the given poses.
-    verification.compute_relative_pose = True
-    pycolmap.set_random_seed(seed)
-    with _colmap_stage("exhaustive matching"):
-        pycolmap.match_exhaustive(
-            database_path, matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu
-        )
-
-
-@dataclass
-class _PairReport:
-    """Matching outcome of one image pair, for progress logs and error messages."""
-
-    views: tuple[int, int]
-    num_inliers: int
-    rotation_error: float | None  # degrees between COLMAP's estimated relative rotation and the given poses' one
-    direction_error: float | None  # degrees between the estimated and the given directions of the baseline
-
-    def disagrees(self, max_rotation_error: float = 5.0, max_direction_error: float = 45.0) -> bool:
-        """Whether COLMAP's own relative pose contradicts the given one beyond its usual error on short baselines.
-
-        Defaults: on LLFF fern (2 views, images_8) the estimate is off by 1.3 deg and 16 deg; swapping two synthetic
-        cameras gives 11 deg and 175 deg.
-        """
-        if self.rotation_error is None or self.direction_error is None:
-            return False
-        return self.rotation_error > max_rotation_error or self.direction_error > max_direction_error
-
-    def describe(self) -> str:
-        off = ""
-        if self.rotation_error is not None and self.direction_error is not None:
-            off = (
-                f" (rotation off {self.rotation_error:.1f} deg, baseline direction off {self.direction_error:.0f} deg)"
-            )
-        return f"views {self.views}: {self.num_inliers} verified matches{off}"
-
-
-def _verified_pairs(database_path: Path, names: list[str], c2w: np.ndarray) -> list[_PairReport]:
-    database = pycolmap.Database.open(database_path)
-    try:
-        view_of = {image.image_id: names.index(image.name) for image in database.read_all_images()}
-        pair_ids, geometries = database.read_two_view_geometries()
-    finally:
-        database.close()
-    reports = {}
-    for pair_id, geometry in zip(pair_ids, geometries, strict=True):
-        id1, id2 = pycolmap.pair_id_to_image_pair(pair_id)
-        v1, v2 = view_of[id1], view_of[id2]
-        rotation_error = direction_error = None
-        if geometry.cam2_from_cam1 is not None and len(geometry.inlier_matches):
-            pose1, pose2 = colmap_cam_from_world(c2w[v1]), colmap_cam_from_world(c2w[v2])
-            rotation = pose2[:, :3] @ pose1[:, :3].T
-            translation = pose2[:, 3] - rotation @ pose1[:, 3]
-            estimated = geometry.cam2_from_cam1
-            cosine = (np.trace(estimated.rotation.matrix().T @ rotation) - 1.0) / 2.0
-            rotation_error = float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
-            # Scale-free: an essential matrix only fixes the direction of the baseline.
-            cosine = _unit(estimated.translation) @ _unit(translation)
-            direction_error = float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
-        views = (min(v1, v2), max(v1, v2))
-        reports[views] = _PairReport(views, len(geometry.inlier_matches), rotation_error, direction_error)
-    n = len(names)
-    # Pairs COLMAP dropped entirely (no match at all) are reported too, so the error lists every pair.
-    return [reports.get((a, b), _PairReport((a, b), 0, None, None)) for a in range(n) for b in range(a + 1, n)]
-
-
-def _unit(vector: np.ndarray) -> np.ndarray:
-    vector = np.asarray(vector, dtype=np.float64).reshape(3)
-    return vector / max(float(np.linalg.norm(vector)), 1e-300)
-
-
-def _triangulate(
-    database_path: Path,
-    work_dir: Path,
-    names: list[str],
-    c2w: np.ndarray,
-    min_tri_angle: float,
-    max_reprojection_error: float,
-    seed: int,
-    num_threads: int,
-) -> pycolmap.Reconstruction:
-    database = pycolmap.Database.open(database_path)
-    try:
-        cameras, images = database.read_all_cameras(), database.read_all_images()
-    finally:
-        database.close()
-    reconstruction = pycolmap.Reconstruction()
-    for camera in cameras:
-        reconstruction.add_camera_with_trivial_rig(camera)
-    for image in images:
-        if image.frame_id != image.image_id or image.camera_id not in {c.camera_id for c in cameras}:
-            # The trivial rigs and frames made below must carry the database's ids, or COLMAP mixes up the images.
-            raise SparseDepthError(f"unexpected COLMAP database layout (image {image}); this pycolmap is unsupported")
-        # Same ids as in the database, so COLMAP's correspondence graph refers to these images.
-        pose = pycolmap.Rigid3d(colmap_cam_from_world(c2w[names.index(image.name)]))
-        reconstruction.add_image_with_trivial_frame(
-            pycolmap.Image(name=image.name, camera_id=image.camera_id, image_id=image.image_id), pose
-        )
-
-    options = pycolmap.IncrementalPipelineOptions()
-    options.num_threads = num_threads
-    options.random_seed = seed
-    options.extract_colors = False
-    # The DS-NeRF release: tri_ignore_two_view_tracks=0 (with 2 views every track is a two-view track) and
-    # init_min_tri_angle=4; the latter only picks the initial pair of a full reconstruction, inert with fixed poses.
-    options.triangulation.ignore_two_view_tracks = False
-    options.mapper.init_min_tri_angle = 4.0
-    options.triangulation.min_angle = min_tri_angle
-    options.mapper.filter_min_tri_angle = min_tri_angle
-    options.mapper.filter_max_reproj_error = max_reprojection_error
-    output_dir = work_dir / "sparse"
-    output_dir.mkdir()
-    with _colmap_stage("triangulation"):
-        # Poses stay fixed: point_triangulator sets fix_existing_frames and refines neither poses nor intrinsics.
-        return pycolmap.triangulate_points(
-            reconstruction, database_path, work_dir / "images", output_dir, options=options, refine_intrinsics=False
-        )
-
-
-def _collect(
-    reconstruction: pycolmap.Reconstruction,
-    names: list[str],
-    c2w: np.ndarray,
-    min_track_length: int,
-    percentile: tuple[float, float],
-) -> list[SparseDepth]:
-    points = reconstruction.points3D
-    by_name = {image.name: image for image in reconstruction.images.values()}
-    views = []
-    for index, name in enumerate(names):
-        image = by_name[name]
-        cam_from_world = image.cam_from_world().matrix()
-        # Depths are only meaningful along OUR rays if COLMAP kept the poses it was given.
-        if np.abs(cam_from_world - colmap_cam_from_world(c2w[index])).max() > 1e-6:
-            raise SparseDepthError(f"COLMAP changed the pose of view {index} during triangulation; it must stay fixed")
-        pixels, ids = [], []
-        for point2d in image.points2D:
-            if point2d.has_point3D() and points[point2d.point3D_id].track.length() >= min_track_length:
-                pixels.append(point2d.xy)
-                ids.append(point2d.point3D_id)
-        ids_np = np.array(ids, dtype=np.int64)
-        order = np.argsort(ids_np, kind="stable")
-        ids_np = ids_np[order]
-        pixels_np = np.array(pixels, dtype=np.float64).reshape(-1, 2)[order] - 0.5
-        xyz = np.array([points[i].xyz for i in ids_np], dtype=np.float64).reshape(-1, 3)
-        depth = xyz @ cam_from_world[2, :3] + cam_from_world[2, 3]
-        error = np.array([points[i].error for i in ids_np], dtype=np.float64)
-        keep = depth > 0  # COLMAP enforces cheirality; this guards the percentile range against a stray point
-        if keep.any():
-            low, high = np.percentile(depth[keep], percentile)
-            keep &= (depth >= low) & (depth <= high)
-        views.append(
-            SparseDepth(
-                pixels=pixels_np[keep].astype(np.float32),
-                depth=depth[keep].astype(np.float32),
-                reprojection_error=error[keep].astype(np.float32),
-                point_ids=ids_np[keep],
-            )
-        )
-    return views
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Cache
 
 
 def _read_cache(npz_path: Path, json_path: Path, identity: dict[str, Any]) -> list[SparseDepth] | None:

@@ -10,8 +10,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from simplenerf.data.colmap import SparseDepth
 from simplenerf.data.scene import Scene
-from simplenerf.data.sparse_depth import SparseDepth, load_or_compute_sparse_depth
+from simplenerf.data.sparse_depth import load_or_compute_sparse_depth
 from simplenerf.model.nerf import NeRF
 
 

@@ -16,15 +16,9 @@ import pytest
 import torch
 
 import simplenerf.data.sparse_depth as sparse_depth_module
+from simplenerf.data.colmap import SparseDepth, SparseDepthError, colmap_cam_from_world, colmap_pinhole_params
 from simplenerf.data.llff import load_llff_scene, subset
-from simplenerf.data.sparse_depth import (
-    SparseDepth,
-    SparseDepthError,
-    colmap_cam_from_world,
-    colmap_pinhole_params,
-    compute_sparse_depth,
-    load_or_compute_sparse_depth,
-)
+from simplenerf.data.sparse_depth import compute_sparse_depth, load_or_compute_sparse_depth
 from simplenerf.data.synthetic import make_synthetic_scene
 from simplenerf.geometry.rays import pixel_rays, project
 from tests.conftest import require_shared

@@ -74,6 +74,7 @@ class Checkpointing(ModelCheckpoint):
             every_n_train_steps=every_n_train_steps,
             save_top_k=save_top_k,
             save_last=True,
+            enable_version_counter=False,  # a resumed run overwrites its own step files and last.ckpt
         )
 
     def on_train_end(self, trainer, pl_module) -> None:

@@ -1,60 +1,177 @@
 """`python -m simplenerf {fit,validate,test,predict} --config ...`: LightningCLI with the project's defaults.
 
-Defaults every run gets: W&B logging (offline without credentials), a rich progress bar with rays/s, learning-rate
-logging, checkpoints under `<trainer.default_root_dir>/checkpoints` (resume with `--ckpt_path last`), the
-validation renders (`--val_renders.*`: RGB, depth, accumulation and error map of the validation view at every
-validation) and the evaluation callback (`--evaluation.*`) that writes test metrics and renders.
+Defaults every run gets: W&B logging (offline without credentials), progress (a bar in a terminal, a plain line
+every N steps in a log file: `--progress.*`), rays/s, learning-rate logging, checkpoints under
+`<trainer.default_root_dir>/checkpoints` (resume with `--ckpt_path last`), a stop on a NaN/inf loss, the validation
+renders (`--val_renders.*`), the evaluation callback (`--evaluation.*`) that writes test metrics and renders, and an
+optional video at the end of training (`--video.frames N`).
+
+A run is trusted before it starts: inputs (data, LPIPS weights, the checkpoint and whether it fits the model, the
+run folder; `simplenerf.checks`) are checked first and a problem stops the command with one `simplenerf: error:`
+line, exit status 2 and nothing created (`simplenerf.console`: parser errors too, with a hint). `fit` refuses a run
+folder that already has checkpoints unless it resumes (`--ckpt_path last`) or is told `--overwrite true`;
+`<run>/config.yaml` records how the run was trained (`test` saves its own config beside its results).
 """
 
 from __future__ import annotations
 
 import os
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
-import torch
 from jsonargparse import lazy_instance
 from lightning.pytorch import LightningDataModule
-from lightning.pytorch.callbacks import RichProgressBar
-from lightning.pytorch.cli import LightningCLI
+from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
 
-from simplenerf.callbacks import Checkpointing, LearningRates, RaysPerSecond
-from simplenerf.errors import DataError, SimpleNeRFError
+from simplenerf.callbacks import (
+    Checkpointing,
+    LearningRates,
+    ProgressLog,
+    RaysPerSecond,
+    StopOnNonFiniteLoss,
+    TrainingProgressBar,
+)
+from simplenerf.checks import (
+    check_checkpoint_fits,
+    check_model_meets_data,
+    check_writable,
+    kept_checkpoints,
+    prepare_fresh_fit,
+    read_checkpoint,
+    resolve_checkpoint,
+)
+from simplenerf.console import PROG, HeldLogs, OneLineErrorParser, quiet_libraries
+from simplenerf.errors import DataError, SimpleNeRFError, TrainingDiverged
 from simplenerf.evaluation.evaluator import Evaluator
 from simplenerf.evaluation.lpips import LPIPSWeightsNotFound
 from simplenerf.loggers import WandbLogger
 from simplenerf.memory import reuse_freed_memory
 from simplenerf.module import SimpleNeRF
 from simplenerf.viz.renders import ValidationRenders
+from simplenerf.viz.video import TrainingVideo
+
+DESCRIPTION = (
+    "SimpleNeRF (SIGGRAPH Asia 2023): Neural Radiance Fields from 2 to 4 photos, regularised by simpler augmented "
+    "models. fit trains a run (resume with --ckpt_path last), validate scores the validation view, test renders and "
+    "scores every test frame into <run>/test, predict renders the test frames. Start from a config in configs/, "
+    "e.g. `simplenerf fit --config configs/demo.yaml`; `simplenerf fit --help` lists every option."
+)
+
+
+class RunConfig(SaveConfigCallback):
+    """`fit` saves its config as `<run>/config.yaml`, the record of how the run was trained. Other subcommands leave
+    that file alone and hand their config to the callbacks that keep it beside their results (`run_config`
+    attribute: the Evaluator writes it into `<run>/test/config.yaml`)."""
+
+    def setup(self, trainer, pl_module, stage: str) -> None:
+        if stage == "fit":
+            super().setup(trainer, pl_module, stage)
+            return
+        text = self.parser.dump(self.config, skip_none=False)
+        for callback in trainer.callbacks:
+            if hasattr(callback, "run_config"):
+                callback.run_config = text
 
 
 class SimpleNeRFCLI(LightningCLI):
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        # Lightning's info lines (seed, devices) appear once the inputs pass: a bad input prints its error line alone.
+        self._held_logs = HeldLogs()
+        try:
+            super().__init__(*args, **kwargs)
+        except BaseException:
+            self._held_logs.release(emit=False)
+            raise
+        self._held_logs.release()
+
     def add_arguments_to_parser(self, parser) -> None:
         parser.add_lightning_class_args(Checkpointing, "checkpoint")
         parser.add_lightning_class_args(Evaluator, "evaluation")
         parser.add_lightning_class_args(ValidationRenders, "val_renders")
+        parser.add_lightning_class_args(ProgressLog, "progress")
+        parser.add_lightning_class_args(TrainingVideo, "video")
         parser.link_arguments(
             "trainer.default_root_dir", "checkpoint.dirpath", compute_fn=lambda root: os.path.join(root, "checkpoints")
         )
+        # One setting of one fact: the NDC near plane the data module builds rays with is the one the NeRF maps
+        # samples back to metric depth with.
+        parser.link_arguments("data.init_args.near", "model.nerf.init_args.near")
 
+    def _prepare_subcommand_parser(self, klass: type, subcommand: str, **kwargs: Any) -> LightningArgumentParser:
+        parser = super()._prepare_subcommand_parser(klass, subcommand, **kwargs)
+        if subcommand == "fit":
+            parser.add_argument(
+                "--overwrite", type=bool, default=False,
+                help="Start afresh in a run folder that already has checkpoints, deleting them. Without it, fit "
+                "refuses such a folder unless it resumes with --ckpt_path.",
+            )
+        return parser
+
+    def checkpoint_folder(self) -> Path:
+        callback = self.trainer.checkpoint_callback
+        if callback is not None and callback.dirpath is not None:
+            return Path(callback.dirpath)
+        return Path(self.trainer.default_root_dir) / "checkpoints"
+
+    def output_folders(self, subcommand: str) -> list[Path]:
+        """The folders `subcommand` writes into (checked for writing once the inputs pass)."""
+        folders = [Path(self.trainer.default_root_dir)]
+        if subcommand == "fit":
+            folders.append(self.checkpoint_folder())
+        folders += [Path(logger.save_dir) for logger in self.trainer.loggers if logger.save_dir is not None]
+        for callback in self.trainer.callbacks:
+            if isinstance(callback, Evaluator) and callback.output_dir is not None:
+                folders.append(Path(callback.output_dir).parent)
+        return list(dict.fromkeys(folders))
 
     def _run_subcommand(self, subcommand: str) -> None:
-        # Bad input (a missing scene, missing LPIPS weights) stops here, before loggers or outputs are created.
+        # Bad input (a missing scene, missing LPIPS weights, a checkpoint that does not fit) stops here, before
+        # loggers or outputs create anything.
+        n_views = getattr(self.datamodule, "n_views", None)
+        check_model_meets_data(self.model, n_views if isinstance(n_views, int) else None, subcommand)
+        for callback in self.trainer.callbacks:  # e.g. a loss-weight schedule naming a loss the model lacks
+            if hasattr(callback, "check_model"):
+                callback.check_model(self.model)
         if hasattr(self.datamodule, "check_inputs"):
             self.datamodule.check_inputs(subcommand)
         for callback in self.trainer.callbacks:
             if hasattr(callback, "check_inputs"):
-                callback.check_inputs(subcommand)
-        super()._run_subcommand(subcommand)
+                try:
+                    callback.check_inputs(subcommand)
+                except LPIPSWeightsNotFound as e:
+                    # The advice must be one that works: lpips_weights takes a path, lpips turns the metric off.
+                    raise SimpleNeRFError(re.sub(r"\(e\.g\. `--evaluation\.lpips_weights none`\)",
+                                                 "with `--evaluation.lpips false`", str(e))) from None
+        views = getattr(self.datamodule, "train_views", None) if subcommand == "fit" else None
+        check_model_meets_data(self.model, len(views) if views is not None else None, subcommand)
+        config = self.config_init[subcommand]
+        folder = self.checkpoint_folder()
+        given = config.get("ckpt_path")
+        config["ckpt_path"] = resolve_checkpoint(subcommand, given, folder, self.model)
+        if subcommand == "fit" and given is None:
+            prepare_fresh_fit(folder, bool(config.get("overwrite", False)))
+        check_writable(self.output_folders(subcommand))
+        self._held_logs.release()
+        try:
+            super()._run_subcommand(subcommand)
+        except TrainingDiverged as e:
+            raise TrainingDiverged(f"{e}; {kept_checkpoints(folder)}") from None
 
 
 def trainer_defaults() -> dict:
+    """Every run's trainer settings. In a terminal a progress bar (counting steps, also after a resume); elsewhere
+    (a log file) no bar, and `ProgressLog` prints plain lines instead."""
+    terminal = sys.stdout.isatty()
     return {
         "default_root_dir": "runs/default",
         "max_steps": 100000,
         "logger": lazy_instance(WandbLogger),
-        "callbacks": [RichProgressBar(), RaysPerSecond(), LearningRates()],
+        "callbacks": [*([TrainingProgressBar()] if terminal else []), RaysPerSecond(), LearningRates(),
+                      StopOnNonFiniteLoss()],
+        "enable_progress_bar": terminal,
         "check_val_every_n_epoch": None,
         "val_check_interval": 5000,
         "num_sanity_val_steps": 0,
@@ -73,7 +190,11 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
         LightningDataModule,
         subclass_mode_data=True,
         trainer_defaults=trainer_defaults(),
+        save_config_callback=RunConfig,
         save_config_kwargs={"overwrite": True},
+        parser_class=OneLineErrorParser,
+        parser_kwargs={"prog": PROG, "description": DESCRIPTION},
+        seed_everything_default=0,
         run=run,
         args=args,
     )
@@ -89,18 +210,22 @@ def load_for_tool(
     cli = make_cli([*(a for c in configs for a in ("--config", c)), *overrides, "--trainer.logger", "false"], run=False)
     cli.datamodule.setup(stage)
     if ckpt is not None:
-        cli.model.load_state_dict(torch.load(ckpt, map_location="cpu", weights_only=False)["state_dict"])
+        checkpoint = read_checkpoint(Path(ckpt))
+        check_checkpoint_fits(Path(ckpt), checkpoint, cli.model)
+        cli.model.load_state_dict(checkpoint["state_dict"])
         cli.model.to(device).eval()
     return cli
 
 
 def run_tool(main_function: Callable[[], None], name: str) -> None:
-    """Runs a tool's main; bad input ends with one `<name>: error:` line and exit status 2, as in `main`."""
+    """Runs an entry point's main; bad input ends with one `<name>: error:` line and exit status 2 (a diverged
+    training: 1), as in `main`."""
+    quiet_libraries()
     try:
         main_function()
     except (SimpleNeRFError, LPIPSWeightsNotFound) as e:
         print(f"{name}: error: {e}", file=sys.stderr)
-        sys.exit(2)
+        sys.exit(getattr(e, "exit_status", 2))
 
 
 def split_overrides(argv: list[str]) -> tuple[list[str], list[str]]:
@@ -113,4 +238,10 @@ def split_overrides(argv: list[str]) -> tuple[list[str], list[str]]:
 
 def main(args: list[str] | None = None) -> None:
     """Entry point; bad input ends with one `error:` line and exit status 2 instead of a traceback."""
-    run_tool(lambda: make_cli(args), "simplenerf")
+    argv = sys.argv[1:] if args is None else args
+    if argv[:1] == ["process-data"]:  # photos -> an LLFF-layout scene (simplenerf.data.photos); not a Lightning command
+        from simplenerf.data.photos import main as process_data
+
+        run_tool(lambda: process_data(argv[1:]), PROG)
+        return
+    run_tool(lambda: make_cli(args), PROG)

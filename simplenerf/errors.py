@@ -4,6 +4,23 @@
 class SimpleNeRFError(Exception):
     """Base class: bad input or setup the user can fix; the message says what and where."""
 
+    exit_status = 2
+    """The process's exit status when the command line stops on this error (2: bad input, as argparse)."""
+
 
 class DataError(SimpleNeRFError, ValueError):
     """A scene on disk is missing, incomplete or inconsistent, or a split cannot be made from it."""
+
+
+class CheckpointError(SimpleNeRFError):
+    """A checkpoint is missing, unreadable (truncated, not a checkpoint) or does not fit the model."""
+
+
+class RunFolderError(SimpleNeRFError):
+    """The run folder cannot be written, or writing it would destroy an earlier run's checkpoints."""
+
+
+class TrainingDiverged(SimpleNeRFError):
+    """The training loss became NaN or infinite; the checkpoints written before it are kept."""
+
+    exit_status = 1

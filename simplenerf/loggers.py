@@ -23,7 +23,9 @@ def wandb_credentials_available() -> bool:
 class WandbLogger(_LightningWandbLogger):
     """Lightning's W&B logger, offline (no network, no prompt) when no credentials are found.
 
-    Offline runs are written under `<save_dir>/wandb/` and can be uploaded later with `wandb sync`.
+    Offline runs are written under `<save_dir>/wandb/` and can be uploaded later with `wandb sync`. Nothing is created
+    on disk until the run starts logging (after the CLI's input checks), and W&B's console output is replaced by one
+    line saying where the run is (its URL, or the offline folder and how to upload it).
     """
 
     def __init__(
@@ -46,5 +48,24 @@ class WandbLogger(_LightningWandbLogger):
             offline = os.environ.get("WANDB_MODE", "") in ("offline", "dryrun", "disabled") or (
                 os.environ.get("WANDB_MODE") != "online" and not wandb_credentials_available()
             )
-        Path(save_dir).mkdir(parents=True, exist_ok=True)
-        super().__init__(project=project, name=name, save_dir=save_dir, offline=offline, log_model=log_model)
+        super().__init__(
+            project=project, name=name, save_dir=save_dir, offline=offline, log_model=log_model,
+            settings={"silent": True},
+        )
+        # Lightning passes anonymous=None, which W&B answers with a deprecation warning at every start.
+        self._wandb_init.pop("anonymous", None)
+
+    @property
+    def experiment(self):
+        """The W&B run, started on first use; its folder is created only then."""
+        new = self._experiment is None
+        if new and self._save_dir is not None:
+            Path(self._save_dir).mkdir(parents=True, exist_ok=True)
+        run = super().experiment
+        if new and self._experiment is not None:  # started here, on global rank 0
+            if getattr(run, "offline", False):
+                folder = run.settings.sync_dir
+                print(f"W&B: offline run in {folder} (upload it later with `wandb sync {folder}`)", flush=True)
+            elif not getattr(run, "disabled", False):
+                print(f"W&B: {run.url}", flush=True)
+        return run

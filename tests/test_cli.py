@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -15,22 +16,27 @@ import yaml
 from tests.conftest import REPO, shared_dir
 
 SMALL = [
-    "--model.nerf.num_coarse", "8", "--model.nerf.num_fine", "8",
-    *(f"--model.nerf.{f}.{k}={v}" for f in ("coarse", "fine") for k, v in (("num_layers", 2), ("width", 16))),
-    *(f"--model.nerf.{f}.skip_layer=1" for f in ("coarse", "fine")), "--model.chunk", "4096",
-    "--data.init_args.rays_per_batch", "64", "--data.init_args.sparse_rays_per_batch", "32",
+    "--model.chunk", "4096", "--data.init_args.rays_per_batch", "64", "--data.init_args.sparse_rays_per_batch", "32",
     "--trainer.val_check_interval", "2", "--checkpoint.every_n_train_steps", "2",
 ]
+SIZES = {"num_layers": 2, "width": 16, "skip_layer": 1, "num_coarse": 8, "num_fine": 8}
 
 
-def tiny_augmentations(tmp: Path) -> Path:
-    """An override with the demo's augmentations at a tiny size (lists are replaced whole, so all of it)."""
-    demo = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
-    augmentations = demo["model"]["augmentations"]
-    for aug in augmentations:
-        aug["init_args"]["field"]["init_args"].update(num_layers=2, width=16, skip_layer=1)
-    path = tmp / "tiny_augmentations.yaml"
-    path.write_text(yaml.safe_dump({"model": {"augmentations": augmentations}}))
+def shrink(node, sizes: dict[str, int] = SIZES):
+    """A config tree with every network size named in `sizes` replaced by that size."""
+    if isinstance(node, dict):
+        return {key: sizes[key] if key in sizes else shrink(value, sizes) for key, value in node.items()}
+    if isinstance(node, list):
+        return [shrink(value, sizes) for value in node]
+    return node
+
+
+def tiny_model(tmp: Path) -> Path:
+    """An override with the demo's NeRF and augmentations at a tiny size (lists are replaced whole, so all of it)."""
+    model = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())["model"]
+    tmp.mkdir(parents=True, exist_ok=True)
+    path = tmp / "tiny_model.yaml"
+    path.write_text(yaml.safe_dump({"model": {key: shrink(model[key]) for key in ("nerf", "augmentations")}}))
     return path
 
 
@@ -45,21 +51,28 @@ def run(*args: str, env: dict | None = None, check: bool = True) -> subprocess.C
     return proc
 
 
-def run_args(tmp: Path) -> list[str]:
-    """The demo config (SimpleNeRF on the synthetic scene, 96x128) shrunk to seconds, with its files in `tmp`."""
+def run_args(tmp: Path, shared: Path | None = None) -> list[str]:
+    """The demo config (SimpleNeRF on the synthetic scene, 96x128) shrunk to seconds, with its run folder in `tmp` and
+    its generated scene and SfM cache in `shared` (default `tmp`)."""
+    shared = shared or tmp
     return [
-        "--config", "configs/demo.yaml", "--config", str(tiny_augmentations(tmp)), *SMALL,
-        "--data.init_args.root", str(tmp / "data"), "--data.init_args.sparse_depth_cache", str(tmp / "cache"),
+        "--config", "configs/demo.yaml", "--config", str(tiny_model(tmp)), *SMALL,
+        "--data.init_args.root", str(shared / "data"), "--data.init_args.sparse_depth_cache", str(shared / "cache"),
         "--trainer.default_root_dir", str(tmp / "run"), "--trainer.logger.init_args.save_dir", str(tmp / "run"),
     ]
 
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory) -> Path:
-    """A 4-step fit, resumed to 6 steps with --ckpt_path last."""
+    """A 4-step fit, resumed to 6 steps with --ckpt_path last and a 3-frame video at the end; what each printed is
+    kept in fit{1,2}.{stdout,stderr}."""
     tmp = tmp_path_factory.mktemp("cli")
-    run("fit", *run_args(tmp), "--trainer.max_steps", "4")
-    run("fit", *run_args(tmp), "--trainer.max_steps", "6", "--ckpt_path", "last")
+    first = run("fit", *run_args(tmp), "--trainer.max_steps", "4")
+    second = run("fit", *run_args(tmp), "--trainer.max_steps", "6", "--ckpt_path", "last", "--video.frames", "3",
+                 "--video.factor_down", "4")
+    for name, proc in (("fit1", first), ("fit2", second)):
+        (tmp / f"{name}.stdout").write_text(proc.stdout)
+        (tmp / f"{name}.stderr").write_text(proc.stderr)
     return tmp
 
 
@@ -78,6 +91,50 @@ def test_fit_writes_checkpoints_and_resumes(trained):
     assert {f"step000004_{kind}.png" for kind in ("rgb", "depth", "accumulation", "error")} <= {
         p.name for p in (trained / "run" / "val").iterdir()
     }
+
+
+def test_progress_lines_in_a_log_file(trained):
+    """Without a terminal: a plain line per step here (max_steps / 100 rounds down to 1), one per checkpoint and
+    validation; the resumed run counts from the checkpoint's step."""
+    run_dir = trained / "run"
+    first = (trained / "fit1.stdout").read_text().splitlines()
+    number = r"\d+(\.\d+)?(e[+-]\d+)?"
+    step1 = next(line for line in first if line.startswith("step 1/4"))
+    assert re.fullmatch(rf"step 1/4 \(25%\)  loss {number}  psnr {number}  elapsed 0:00:\d\d  eta 0:\d\d:\d\d", step1)
+    step2 = next(line for line in first if line.startswith("step 2/4 (50%)"))
+    assert re.fullmatch(rf"step 2/4 \(50%\)  loss {number}  psnr {number}  \d+ rays/s  elapsed \S+  eta \S+", step2)
+    after = first[first.index(step2) + 1 : first.index(step2) + 3]
+    assert after[0] == f"step 2/4  checkpoint  {run_dir / 'checkpoints'}"
+    assert re.fullmatch(rf"step 2/4  validation  psnr {number}", after[1])
+    second = (trained / "fit2.stdout").read_text().splitlines()
+    steps = [line.split()[1] for line in second if line.startswith("step ")]
+    assert steps[0] == "4/6" and f"step 4/6  resumed from {run_dir / 'checkpoints' / 'last.ckpt'}" in second
+    assert steps[1:] == ["5/6", "6/6", "6/6", "6/6"]
+
+
+def test_a_normal_run_prints_no_library_noise(trained):
+    for name in ("fit1", "fit2"):
+        text = (trained / f"{name}.stdout").read_text() + (trained / f"{name}.stderr").read_text()
+        for noise in ("Tip:", "deprecated", "Deprecat", "FutureWarning", "anonymous", "wandb leet", "wandb:",
+                      "is not empty", "No seed found", "Traceback"):
+            assert noise not in text, (name, noise)
+        assert f"W&B: offline run in {trained / 'run' / 'wandb'}" in text
+
+
+def test_help_describes_simplenerf():
+    out = run("--help").stdout
+    assert out.startswith("usage: simplenerf ")
+    assert "SimpleNeRF (SIGGRAPH Asia 2023): Neural Radiance Fields from 2 to 4 photos" in out
+
+
+def test_final_video_is_h264_and_logged_to_wandb(trained):
+    from tests.viz.test_video import mp4_codec
+
+    video = trained / "run" / "video_spiral.mp4"
+    assert mp4_codec(video) == "avc1"
+    logged = list((trained / "run" / "wandb").glob("offline-run-*/files/media/videos/video/spiral_*.mp4"))
+    assert len(logged) == 1 and logged[0].read_bytes() == video.read_bytes()
+    assert f"video: {video} (3 frames of 64x24, spiral)" in (trained / "fit2.stdout").read_text()
 
 
 def test_validate_reports_psnr(trained):
@@ -106,6 +163,27 @@ def test_test_writes_metrics_and_renders(trained):
     assert not (trained / "run" / "test.partial").exists()
 
 
+def test_test_keeps_earlier_results_and_the_run_config(trained):
+    run_dir = trained / "run"
+    (run_dir / "test").mkdir(exist_ok=True)
+    (run_dir / "test" / "marker").write_text("earlier results")
+    config = (run_dir / "config.yaml").read_bytes()
+    archives = set(run_dir.glob("test.2*"))
+    proc = run("test", *run_args(trained), "--ckpt_path", "last", "--evaluation.lpips", "false")
+    [archive] = set(run_dir.glob("test.2*")) - archives
+    assert (archive / "marker").read_text() == "earlier results"
+    assert f"earlier results of {run_dir / 'test'} moved to {archive}" in proc.stdout
+    assert (run_dir / "test" / "summary.json").is_file() and not (run_dir / "test" / "marker").exists()
+    # The run's config.yaml still says how it was trained; the test's own config is beside its results.
+    assert (run_dir / "config.yaml").read_bytes() == config
+    test_config = yaml.safe_load((run_dir / "test" / "config.yaml").read_text())
+    assert test_config["evaluation"]["lpips"] is False
+    assert test_config["ckpt_path"] == "last"  # as given; summary.json names the file it resolved to
+    summary = json.loads((run_dir / "test" / "summary.json").read_text())
+    assert summary["config"] == str(run_dir / "test" / "config.yaml")
+    assert summary["checkpoint"] == str(run_dir / "checkpoints" / "last.ckpt")
+
+
 def test_missing_lpips_weights_stop_test_before_writing(trained, tmp_path):
     (trained / "run" / "test").mkdir(exist_ok=True)
     marker = trained / "run" / "test" / "marker"
@@ -113,8 +191,13 @@ def test_missing_lpips_weights_stop_test_before_writing(trained, tmp_path):
     env = {"SIMPLENERF_LPIPS_WEIGHTS": str(tmp_path / "missing.npz"), "TORCH_HOME": str(tmp_path / "hub")}
     proc = run("test", *run_args(trained), "--ckpt_path", "last", env=env, check=False)
     assert proc.returncode == 2
-    assert "simplenerf: error:" in proc.stderr and "SIMPLENERF_LPIPS_WEIGHTS" in proc.stderr
+    [line] = proc.stderr.strip().splitlines()
+    assert line.startswith("simplenerf: error:") and "SIMPLENERF_LPIPS_WEIGHTS" in line
+    # The advice is one that works: `--evaluation.lpips false` (lpips_weights takes a path, not "none").
+    assert "`--evaluation.lpips false`" in line and "lpips_weights none" not in line
     assert marker.read_text() == "earlier results"
+    proc = run("test", *run_args(trained), "--ckpt_path", "last", "--evaluation.lpips", "false", env=env)
+    assert json.loads((trained / "run" / "test" / "summary.json").read_text())["lpips"] is None
 
 
 def test_bad_scene_is_one_line_error(tmp_path):
@@ -124,8 +207,8 @@ def test_bad_scene_is_one_line_error(tmp_path):
     )
     assert proc.returncode == 2
     expected = f"simplenerf: error: scene directory {tmp_path / 'nope'} does not exist"
-    assert proc.stderr.strip().splitlines()[-1] == expected
-    assert "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines() == [expected]
+    assert not (tmp_path / "run").exists()  # not even an empty run folder
 
 
 def test_too_many_views_is_one_line_error(tmp_path):

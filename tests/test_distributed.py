@@ -11,9 +11,10 @@ from simplenerf.data.llff import load_llff_scene, subset
 from tests.test_cli import run, run_args
 
 
-def first_batches(views, rank: int, monkeypatch, n: int = 3) -> list[dict]:
+def first_batches(views, rank: int, monkeypatch, n: int = 3) -> list:
+    """The random rays (`RayBatch`) of the first n training batches of a rank."""
     monkeypatch.setattr(datasets, "_rank", lambda: rank)
-    return list(itertools.islice(iter(datasets.RandomRays(views, 64, near=1.0, seed=0)), n))
+    return [b.random for b in itertools.islice(iter(datasets.RandomRays(views, 64, near=1.0, seed=0)), n)]
 
 
 def test_each_rank_draws_its_own_rays(synthetic_scene, monkeypatch):
@@ -23,9 +24,9 @@ def test_each_rank_draws_its_own_rays(synthetic_scene, monkeypatch):
     rank1 = first_batches(views, 1, monkeypatch)
     again0 = first_batches(views, 0, monkeypatch)
     for a, b, c in zip(rank0, rank1, again0, strict=True):
-        assert torch.equal(a["uv"], c["uv"]) and torch.equal(a["view"], c["view"])  # reproducible per rank
-        pixels_a = set(zip(a["view"].tolist(), map(tuple, a["uv"].tolist()), strict=True))
-        pixels_b = set(zip(b["view"].tolist(), map(tuple, b["uv"].tolist()), strict=True))
+        assert torch.equal(a.uv, c.uv) and torch.equal(a.view, c.view)  # reproducible per rank
+        pixels_a = set(zip(a.view.tolist(), map(tuple, a.uv.tolist()), strict=True))
+        pixels_b = set(zip(b.view.tolist(), map(tuple, b.uv.tolist()), strict=True))
         assert len(pixels_a & pixels_b) < 8  # 64 of ~6000 pixels each: independent draws share a handful at most
 
 

@@ -18,8 +18,7 @@ from pathlib import Path
 import torch
 
 from simplenerf.cli import load_for_tool, run_tool, split_overrides
-from simplenerf.viz.trajectories import scene_trajectory
-from simplenerf.viz.video import downscale_intrinsics, render_video
+from simplenerf.viz.video import render_scene_video
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -42,20 +41,13 @@ def main() -> None:
     own, overrides = split_overrides(sys.argv[1:])
     args = parse_args(own)
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt, device=args.device)
-    dm, model = cli.datamodule, cli.model
-
-    kind = args.path or getattr(dm, "video_trajectory", "spiral")
-    scene = dm.scene
-    c2w = scene_trajectory(scene, kind, args.frames, args.rotations)
-    intrinsics, height, width = downscale_intrinsics(
-        scene.views.intrinsics[scene.split.train[0]], scene.views.height, scene.views.width, args.factor_down
-    )
+    kind = args.path or getattr(cli.datamodule, "video_trajectory", "spiral")
     out = args.out or Path(cli.trainer.default_root_dir) / f"video_{kind}.mp4"
-    written, (closest, farthest) = render_video(
-        model.nerf, c2w, intrinsics, height, width, dm.near, model.hparams.chunk, out, args.fps,
+    written, n, width, height, kind, (closest, farthest) = render_scene_video(
+        cli.model, cli.datamodule, out, kind, args.frames, args.rotations, args.factor_down, args.fps,
         tuple(args.depth_range) if args.depth_range else None,
     )
-    print(f"video: {written} ({len(c2w)} frames of {2 * width}x{height}, {kind}; "
+    print(f"video: {written} ({n} frames of {2 * width}x{height}, {kind}; "
           f"--depth-range {closest:.4g} {farthest:.4g})")
 
 

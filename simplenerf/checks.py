@@ -1,0 +1,174 @@
+"""Checks a run passes before it starts, so that it can be trusted: the checkpoint it starts from (exists, loads, fits
+the model), the run folder (writable; a fresh `fit` does not overwrite another run's checkpoints) and what the model
+needs of the data. Each failure is a `SimpleNeRFError` the command line prints as one line."""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+from lightning.pytorch.utilities import rank_zero_only
+
+from simplenerf.errors import CheckpointError, DataError, RunFolderError
+
+SPECIAL_CHECKPOINTS = ("best", "hpc")  # Lightning's own meanings of --ckpt_path, passed through unchecked
+
+
+def read_checkpoint(path: Path) -> dict:
+    """The checkpoint at `path` loaded on the CPU; CheckpointError naming the file if it is missing or unreadable."""
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint {path} does not exist")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as e:  # a truncated zip, a pickle of something else, an empty file: all unreadable
+        reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise CheckpointError(f"cannot read checkpoint {path} (truncated or not a checkpoint: {reason})") from None
+    if not isinstance(checkpoint, dict) or "state_dict" not in checkpoint:
+        raise CheckpointError(f"{path} is not a Lightning checkpoint (it has no state_dict)")
+    return checkpoint
+
+
+def check_checkpoint_fits(path: Path, checkpoint: dict, model: torch.nn.Module) -> None:
+    """CheckpointError unless the checkpoint's weights have exactly the model's names and shapes."""
+    theirs, ours = checkpoint["state_dict"], model.state_dict()
+    problem = None
+    for name, tensor in ours.items():
+        if name not in theirs:
+            problem = f"it has no {name}"
+        elif tuple(theirs[name].shape) != tuple(tensor.shape):
+            problem = f"{name} is {tuple(theirs[name].shape)} in it but {tuple(tensor.shape)} in the model"
+        if problem:
+            break
+    if problem is None and (extra := sorted(set(theirs) - set(ours))):
+        problem = f"it has {extra[0]}, which the model does not"
+    if problem:
+        raise CheckpointError(f"checkpoint {path} does not fit the model: {problem} (was it trained with another "
+                              "config?)")
+
+
+def usable_checkpoint(path: Path, model: torch.nn.Module) -> int:
+    """Checks that `path` can be loaded into `model`; returns its global step."""
+    checkpoint = read_checkpoint(path)
+    check_checkpoint_fits(path, checkpoint, model)
+    return int(checkpoint.get("global_step", 0))
+
+
+def checkpoints_newest_first(folder: Path) -> list[Path]:
+    """The `*.ckpt` files of `folder`: last.ckpt first, then the others from the newest (modification time)."""
+    if not folder.is_dir():
+        return []
+    others = sorted((p for p in folder.glob("*.ckpt") if p.name != "last.ckpt"),
+                    key=lambda p: (p.stat().st_mtime, p.name), reverse=True)
+    last = folder / "last.ckpt"
+    return [last, *others] if last.is_file() else others
+
+
+def notice(text: str) -> None:
+    """A line on stderr about a choice the checks made for the user (the processes of other ranks stay quiet)."""
+    if rank_zero_only.rank == 0:
+        print(f"simplenerf: {text}", file=sys.stderr, flush=True)
+
+
+def resolve_checkpoint(stage: str, ckpt_path: str | None, folder: Path, model: torch.nn.Module) -> str | None:
+    """The checkpoint `stage` starts from, checked: it exists, loads and fits `model`.
+
+    `last` is `<folder>/last.ckpt`. validate/test/predict need a checkpoint. `fit --ckpt_path last` falls back to
+    the checkpoint of `folder` with the highest step among those that load and fit when last.ckpt is missing,
+    unreadable or does not fit (and says so), and trains from the start when `folder` has no checkpoint.
+    """
+    if ckpt_path in SPECIAL_CHECKPOINTS or (ckpt_path or "").startswith("registry"):
+        return ckpt_path
+    if ckpt_path is None:
+        if stage == "fit":
+            return None
+        raise CheckpointError(f"{stage} needs trained weights: add --ckpt_path last (the run's {folder / 'last.ckpt'})"
+                              " or --ckpt_path FILE")
+    if ckpt_path != "last":
+        usable_checkpoint(Path(ckpt_path), model)
+        return ckpt_path
+    last = folder / "last.ckpt"
+    if stage != "fit":
+        if not last.is_file():
+            raise CheckpointError(f"no checkpoint to {stage}: {last} does not exist (train the run with fit first, "
+                                  "or give --ckpt_path FILE)")
+        usable_checkpoint(last, model)
+        return str(last)
+    candidates = checkpoints_newest_first(folder)
+    if not candidates:
+        notice(f"no checkpoint in {folder} to resume: training from the start")
+        return None
+    problems: list[CheckpointError] = []
+    usable: list[tuple[int, Path]] = []
+    for path in candidates:  # last.ckpt first: if it is usable, no other is read
+        try:
+            usable.append((usable_checkpoint(path, model), path))
+        except CheckpointError as e:
+            problems.append(e)
+        if path == last and usable:
+            return str(last)
+    if not usable:
+        raise CheckpointError(f"{problems[0]}; no other checkpoint in {folder} can be resumed either")
+    step, path = max(usable, key=lambda item: item[0])
+    why = str(problems[0]) if last.is_file() else f"{last} does not exist"
+    notice(f"{why}; resuming from {path} (step {step}), the newest readable checkpoint, instead")
+    return str(path)
+
+
+def prepare_fresh_fit(folder: Path, overwrite: bool) -> None:
+    """A fit without a checkpoint must not overwrite another run's checkpoints: RunFolderError if `folder` has some,
+    unless `overwrite`, which deletes them (a fresh run does not mix its checkpoints with an earlier one's)."""
+    existing = sorted(folder.glob("*.ckpt")) if folder.is_dir() else []
+    if not existing:
+        return
+    if not overwrite:
+        raise RunFolderError(
+            f"{folder} already has checkpoints ({', '.join(p.name for p in existing[:3])}"
+            f"{', ...' if len(existing) > 3 else ''}): resume that run with --ckpt_path last, choose another folder "
+            "with --trainer.default_root_dir, or start afresh with --overwrite true"
+        )
+    for path in existing:
+        path.unlink()
+    notice(f"--overwrite: deleted the {len(existing)} checkpoints of the earlier run in {folder}")
+
+
+def check_writable(folders: list[Path]) -> None:
+    """Creates each folder and writes (then deletes) a file in it: RunFolderError naming the first that fails."""
+    for folder in folders:
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=folder):
+                pass
+        except OSError as e:
+            raise RunFolderError(f"cannot write to the run folder {folder}: {e.strerror or e}") from None
+
+
+def check_model_meets_data(model: Any, n_train: int | None, stage: str) -> None:
+    """What the model needs of the data at fit start: the reliability masks of the augmentations and of L_cfc
+    reproject depth into another train view, so they need at least 2 train views (`n_train`; None: not known)."""
+    if stage != "fit" or n_train is None:
+        return
+    parts = []
+    if len(getattr(model, "augmentations", None) or []):
+        parts.append("augmentations")
+    if getattr(model, "coarse_fine_mask", None) is not None:
+        parts.append("coarse_fine_mask")
+    if parts and n_train < 2:
+        raise DataError(
+            f"{n_train} train view is too few for this model: its {' and '.join(parts)} compare depth across train "
+            "views and need at least 2 (use n_views >= 2, or a model without them, e.g. configs/dsnerf.yaml)"
+        )
+
+
+def kept_checkpoints(folder: Path) -> str:
+    """Which checkpoint survives a stopped run, for its error line."""
+    candidates = checkpoints_newest_first(folder)
+    if not candidates:
+        return "no checkpoint had been written yet"
+    try:
+        step = f", step {int(read_checkpoint(candidates[0]).get('global_step', 0))}"
+    except CheckpointError:
+        step = ""
+    return f"the checkpoints written before it are kept (resume from {candidates[0]}{step})"

@@ -1,0 +1,130 @@
+"""What the command line prints: a parser error as one line and a hint, no library noise (deprecation warnings,
+advertising tips), and Lightning's info lines held back until the run's inputs have passed their checks."""
+
+from __future__ import annotations
+
+import difflib
+import importlib
+import inspect
+import logging
+import re
+import sys
+import warnings
+from typing import Any, NoReturn
+
+from lightning.pytorch.cli import LightningArgumentParser
+
+PROG = "simplenerf"
+
+
+def parser_error_line(message: str, parser: Any) -> tuple[str, str]:
+    """One line for a parser error message of jsonargparse (often many lines of nested causes), and a hint: the
+    closest valid name when an option or a class name is mistyped, else where the options are listed."""
+    lines = [line.strip().lstrip("- ").strip() for line in message.strip().splitlines()]
+    lines = [line for line in lines if line]
+    key, detail = None, lines[0] if lines else message
+    if match := re.match(r'Parser key "([^"]+)":\s*(.*)$', detail):
+        key, detail = match.group(1), match.group(2)
+    suggestion = None
+    for i, line in enumerate(lines):
+        if match := re.match(r"Problem with given class_path '([^']+)':\s*(.*)$", line):
+            class_path, cause = match.group(1), match.group(2) or (lines[i + 1] if i + 1 < len(lines) else "")
+            detail = f"class_path {class_path}: {cause}"
+            suggestion = _class_suggestion(class_path, cause)
+            break
+    else:
+        if not detail and len(lines) > 1:
+            detail = lines[1]
+    if match := re.match(r"unrecognized arguments: (.*)$", detail):
+        options = [s for action in parser._actions for s in action.option_strings]
+        unknown = [token.split("=")[0] for token in match.group(1).split() if token.startswith("--")]
+        for token in unknown:
+            if close := difflib.get_close_matches(token, options, n=1, cutoff=0.6):
+                suggestion = close[0]
+                break
+    prog = parser.prog.replace(" [options]", "")
+    listing = f"`{prog} --help` lists every option"
+    hint = f"hint: did you mean {suggestion}? ({listing})" if suggestion else f"hint: {listing}"
+    return (f"--{key}: {detail}" if key else detail), hint
+
+
+def _class_suggestion(class_path: str, cause: str) -> str | None:
+    """The closest existing name for a mistyped class (in its module) or a mistyped constructor option."""
+    try:
+        if match := re.search(r"module '([^']+)' has no attribute '([^']+)'", cause):
+            module = importlib.import_module(match.group(1))
+            names = [n for n, v in vars(module).items() if inspect.isclass(v)]
+            close = difflib.get_close_matches(match.group(2), names, n=1)
+            return f"{match.group(1)}.{close[0]}" if close else None
+        if match := re.search(r"Option '([^']+)' is not accepted", cause):
+            module_name, _, class_name = class_path.rpartition(".")
+            cls = getattr(importlib.import_module(module_name), class_name)
+            # Options of the whole chain of constructors (a subclass may pass **kwargs on to its base).
+            names = {name for klass in cls.__mro__ if "__init__" in vars(klass)
+                     for name in inspect.signature(klass.__init__).parameters} - {"self", "args", "kwargs"}
+            close = difflib.get_close_matches(match.group(1), sorted(names), n=1)
+            return close[0] if close else None
+    except (ImportError, AttributeError, ValueError, TypeError):
+        return None
+    return None
+
+
+class OneLineErrorParser(LightningArgumentParser):
+    """The CLI's parser: a bad option or config ends with the error line first (`simplenerf: error: ...`), then at
+    most one hint line, and exit status 2, instead of the full usage followed by nested causes."""
+
+    def error(self, message: str, ex: Exception | None = None) -> NoReturn:
+        if not self.exit_on_error:
+            super().error(message, ex)
+        parser = getattr(ex, "subcommand_parser", None) or self
+        line, hint = parser_error_line(message, parser)
+        sys.stderr.write(f"{PROG}: error: {line}\n{hint}\n")
+        sys.exit(2)
+
+
+class _Hold(logging.Filter):
+    def __init__(self, handler: logging.Handler) -> None:
+        super().__init__()
+        self.handler, self.records, self.holding = handler, [], True
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if self.holding:
+            self.records.append(record)
+        return not self.holding
+
+
+class HeldLogs:
+    """Holds back the records of Lightning's log handlers until `release()` (which emits them, once); records never
+    released (the command stopped on an error first) are dropped."""
+
+    def __init__(self) -> None:
+        names = ("lightning.pytorch", "lightning.fabric")
+        self.holds = [_Hold(handler) for name in names for handler in logging.getLogger(name).handlers]
+        for hold in self.holds:
+            hold.handler.addFilter(hold)
+
+    def release(self, emit: bool = True) -> None:
+        for hold in self.holds:
+            hold.handler.removeFilter(hold)
+            hold.holding = False
+            for record in hold.records if emit else []:
+                hold.handler.handle(record)
+        self.holds = []
+
+
+class _DropTips(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "Tip:" not in record.getMessage()
+
+
+def quiet_libraries() -> None:
+    """Keeps a normal run's output to what the user needs: no deprecation warnings of libraries (simplenerf's own
+    stay), no advertising tips from Lightning, no warning that a resumed run's checkpoint folder is not empty."""
+    for category in (DeprecationWarning, PendingDeprecationWarning, FutureWarning):
+        warnings.filterwarnings("ignore", category=category)
+        warnings.filterwarnings("default", category=category, module=r"simplenerf(\.|$)")
+    # Checked by the CLI before the run: the folder has checkpoints only when fit resumes from them.
+    warnings.filterwarnings("ignore", message=r"Checkpoint directory .* exists and is not empty")
+    for name in ("lightning.pytorch", "lightning.fabric"):
+        for handler in logging.getLogger(name).handlers:
+            handler.addFilter(_DropTips())

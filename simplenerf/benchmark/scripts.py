@@ -66,16 +66,25 @@ def _emit(record: dict) -> None:
     print(json.dumps(record), flush=True)
 
 
-def train_step_main(argv: list[str] | None = None, description: str | None = None) -> dict:
-    """`benchmarks/train_step.py`: times training iterations of a config, prints one JSON line."""
+def _training_args(argv: list[str] | None, description: str, extra: dict[str, tuple[int, str]]):
+    """The arguments of a training measurement (`--warmup` and `extra`: name -> (default, help)), its CLI overrides
+    and the model + data module they build."""
     own, overrides = _split(list(sys.argv[1:] if argv is None else argv))
-    parser = _common_parser(description or train_step_main.__doc__)
-    parser.add_argument("--steps", type=int, default=3, help="timed iterations")
-    parser.add_argument("--warmup", type=int, default=2, help="untimed iterations first")
+    parser = _common_parser(description)
+    for name, (default, text) in {"warmup": (2, "untimed iterations first"), **extra}.items():
+        parser.add_argument(f"--{name}", type=int, default=default, help=text)
     args = parser.parse_args(own)
     with _stdout_to_stderr():
         cli = _build(args, overrides)
         warn_zero_weights(cli.model)
+    return args, overrides, cli
+
+
+def train_step_main(argv: list[str] | None = None, description: str | None = None) -> dict:
+    """`benchmarks/train_step.py`: times training iterations of a config, prints one JSON line."""
+    args, overrides, cli = _training_args(argv, description or train_step_main.__doc__,
+                                          {"steps": (3, "timed iterations")})
+    with _stdout_to_stderr():
         result = time_training(cli.model, cli.datamodule, args.steps, args.warmup, args.precision, args.accelerator)
     record = {**_header("train_step", args, overrides), "steps": args.steps, "warmup": args.warmup, **result}
     _emit(record)
@@ -106,14 +115,8 @@ def render_main(argv: list[str] | None = None, description: str | None = None) -
 def profile_main(argv: list[str] | None = None, description: str | None = None) -> dict:
     """`benchmarks/profile_step.py`: profiles one training iteration after warm-up; prints a markdown table of the
     top operators by self CPU time, then one JSON line."""
-    own, overrides = _split(list(sys.argv[1:] if argv is None else argv))
-    parser = _common_parser(description or profile_main.__doc__)
-    parser.add_argument("--warmup", type=int, default=2, help="untimed iterations before the profiled one")
-    parser.add_argument("--top", type=int, default=25, help="operators to list")
-    args = parser.parse_args(own)
+    args, overrides, cli = _training_args(argv, description or profile_main.__doc__, {"top": (25, "operators to list")})
     with _stdout_to_stderr():
-        cli = _build(args, overrides)
-        warn_zero_weights(cli.model)
         result = profile_training(cli.model, cli.datamodule, args.warmup, args.precision, args.top, args.accelerator)
     record = {**_header("profile", args, overrides), "warmup": args.warmup, **result}
     print(f"iteration {record['iteration_s']:.2f} s wall: user {record['user_s']:.2f} s, "

@@ -86,14 +86,18 @@ def log(progress: bool, message: str, *args: object) -> None:
 
 
 @contextlib.contextmanager
-def colmap_stage(stage: str) -> Iterator[None]:
-    """Turns a failing COLMAP check (raised by pycolmap as a bare RuntimeError/ValueError) into a SparseDepthError."""
+def colmap_stage(
+    stage: str, error: type[SimpleNeRFError] | None = None, advice: str = ADVICE
+) -> Iterator[None]:
+    """Turns a failing COLMAP check (raised by pycolmap as a bare RuntimeError/ValueError) into one clear error of
+    type `error` (default `SparseDepthError`) that names the stage and ends with `advice`."""
+    error = error or SparseDepthError
     try:
         yield
-    except SparseDepthError:
+    except SimpleNeRFError:
         raise
     except (RuntimeError, ValueError) as e:
-        raise SparseDepthError(f"COLMAP failed during {stage}: {e}. {ADVICE}") from e
+        raise error(f"COLMAP failed during {stage}: {e}. {advice}") from e
 
 
 def write_images(images: list[np.ndarray], folder: Path) -> list[str]:

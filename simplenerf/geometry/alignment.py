@@ -57,6 +57,7 @@ class CameraAlignment:
     rms: float  # root mean square distance between aligned estimated and reference centres
     max_error: float  # largest such distance
     spread: float  # camera spread: root mean square distance of the reference centres from their centroid
+    extent: float  # largest distance between two reference centres
     rotation_error_deg: float  # largest angle between a camera's orientation and the reference, after the best
     # common rotation of the orientations (independent of the centres)
     direction_error_deg: float  # mean over camera pairs of the angle between the estimated and the reference
@@ -66,6 +67,11 @@ class CameraAlignment:
     def rms_percent(self) -> float:
         """`rms` in percent of `spread`."""
         return 100.0 * self.rms / self.spread
+
+    @property
+    def rms_percent_of_extent(self) -> float:
+        """`rms` in percent of `extent`."""
+        return 100.0 * self.rms / self.extent
 
 
 def align_cameras(c2w_estimated: np.ndarray, c2w_reference: np.ndarray) -> CameraAlignment:
@@ -105,6 +111,7 @@ def align_cameras(c2w_estimated: np.ndarray, c2w_reference: np.ndarray) -> Camer
         rms=float(np.sqrt((errors**2).mean())),
         max_error=float(errors.max()),
         spread=spread,
+        extent=float(np.linalg.norm(centres_ref[:, None] - centres_ref[None], axis=-1).max()),
         rotation_error_deg=float(rotation_errors.max()),
         direction_error_deg=float(np.mean(direction_errors)),
     )

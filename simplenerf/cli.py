@@ -155,6 +155,16 @@ class SimpleNeRFCLI(LightningCLI):
             prepare_fresh_fit(folder, bool(config.get("overwrite", False)))
         check_writable(self.output_folders(subcommand))
         self._held_logs.release()
+        scene = getattr(self.datamodule, "scene", None)
+        if subcommand == "test" and scene is not None and not scene.split.test:
+            from simplenerf.viz.export import render_without_test_frames
+
+            out = Path(self.trainer.default_root_dir) / "test"
+            written = render_without_test_frames(self.model, self.datamodule, config["ckpt_path"], out)
+            print(f"simplenerf: this split has no test frames (train frames {scene.split.train}), so there are no "
+                  f"metrics; wrote the train views' depth maps and point cloud and the spiral video: "
+                  f"{', '.join(map(str, written))}", flush=True)
+            return
         try:
             super()._run_subcommand(subcommand)
         except TrainingDiverged as e:

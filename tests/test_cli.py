@@ -273,3 +273,17 @@ def test_fit_without_a_logger(tmp_path):
     assert args[-2] == "--trainer.logger.init_args.save_dir"
     run("fit", *args[:-2], "--trainer.logger", "false", "--trainer.max_steps", "1")
     assert (tmp_path / "run/checkpoints/last.ckpt").is_file() and not (tmp_path / "run/wandb").exists()
+
+
+def test_explicit_train_frames_without_test_frames_render_instead_of_scoring(tmp_path):
+    """Own photos: `train_frames` + `test_every 0` trains on exactly those frames; `test` then has nothing to score and
+    writes the train views' depth maps, point cloud and the spiral video instead, and says so."""
+    frames = ["--data.init_args.train_frames", "[1, 5, 9]", "--data.init_args.test_every", "0"]
+    fit = run("fit", *run_args(tmp_path), *frames, "--trainer.max_steps", "2")
+    assert "sparse depth: SfM on train views [1, 5, 9]" in fit.stdout
+    test = run("test", *run_args(tmp_path), *frames, "--ckpt_path", "last", "--evaluation.lpips", "false")
+    assert "this split has no test frames (train frames [1, 5, 9]), so there are no metrics" in test.stdout
+    out = tmp_path / "run" / "test"
+    depth_files = sorted(p.name for p in (out / "depth").glob("*.npy"))
+    assert len(depth_files) == 3 and (out / "points.ply").is_file() and (out / "video_spiral.mp4").stat().st_size > 0
+    assert not (out / "metrics.csv").exists()

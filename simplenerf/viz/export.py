@@ -205,3 +205,26 @@ def export_geometry(
     }
     (out_dir / "export.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
+
+
+def render_without_test_frames(model: nn.Module, datamodule, ckpt_path: str | Path, out_dir: str | Path,
+                               video_factor_down: int = 2) -> list[Path]:
+    """What `test` does on a split with no test frames (own photos: `train_frames`, or LLFF `test_every: 0`): no
+    metrics, but the trained model's depth maps of the train views, its point cloud and the spiral video, in
+    `out_dir`. Loads the weights of `ckpt_path` into `model` (a `SimpleNeRF`).
+
+    Returns:
+        The written files and folders.
+    """
+    from simplenerf.viz.video import render_scene_video
+
+    model.load_state_dict(torch.load(ckpt_path, map_location="cpu", weights_only=False)["state_dict"])
+    model.eval()
+    scene, out_dir = datamodule.scene, Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    export_geometry(model.nerf, scene.views.subset(scene.split.train), datamodule.near, model.hparams.chunk, out_dir,
+                    scale=scene.scale)
+    with torch.no_grad():
+        video, *_ = render_scene_video(model, datamodule, out_dir / "video_spiral.mp4", "spiral",
+                                       factor_down=video_factor_down)
+    return [out_dir / "depth", out_dir / "points.ply", video]

@@ -16,6 +16,7 @@ from lightning.pytorch.cli import LRSchedulerCallable, OptimizerCallable
 from torch import nn
 
 from simplenerf.data.batches import Frame, RayBatch, TrainingBatch
+from simplenerf.errors import SimpleNeRFError
 from simplenerf.evaluation.metrics import psnr
 from simplenerf.geometry.rays import pixel_grid
 from simplenerf.geometry.views import Views
@@ -69,6 +70,7 @@ class SimpleNeRF(L.LightningModule):
         lr_scheduler: LRSchedulerCallable | None = None,
         group_lr: dict[str, float] | None = None,
         chunk: int = 8192,
+        backward_per_part: bool = False,
     ) -> None:
         """
         Args:
@@ -93,6 +95,9 @@ class SimpleNeRF(L.LightningModule):
             group_lr: learning rates of named parameter groups (a field's `parameter_groups()`, e.g. a grid's
                 "grid" and "decoder"); the other groups take the optimiser's.
             chunk: rays per forward pass when rendering full frames (bounds memory, not results).
+            backward_per_part: render and backpropagate the random rays, then the sparse-depth rays (as the release's
+                2048-ray sub-batches): the same loss and gradient with about half the activation memory (the random
+                draws of jitter and noise differ from one pass). Not with DDP or fp16 loss scaling.
         """
         super().__init__()
         self.save_hyperparameters(ignore=["nerf", "augmentations", "coarse_fine_mask", "optimizer", "lr_scheduler"])
@@ -114,6 +119,9 @@ class SimpleNeRF(L.LightningModule):
         return bool(self.augmentations) or self.coarse_fine_mask is not None
 
     def on_fit_start(self) -> None:
+        if self.hparams.backward_per_part and self.trainer.world_size > 1:
+            raise SimpleNeRFError("backward_per_part runs two backward passes per step, which DDP's gradient "
+                                  "synchronisation does not allow: set --model.backward_per_part false with DDP")
         if self.needs_masks:
             self.train_views = self.trainer.datamodule.train_views.to(self.device)
 
@@ -123,24 +131,21 @@ class SimpleNeRF(L.LightningModule):
         return Renders(main, {aug.name: aug.render(self.nerf, main, randomized) for aug in self.augmentations})
 
     def training_step(self, batch: TrainingBatch, batch_idx: int) -> torch.Tensor:
-        # One pass over the random rays followed by the sparse-depth rays, then split.
-        random, sparse = self.render(batch.rays, randomized=True).split(len(batch.random))
-        augmented = list(random.augmented.values())
-
-        # L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc (paper Sec. 4.4)
-        losses = {"color": color_loss([random.main.coarse, random.main.fine, *augmented], batch.random.rgb)}
-        if batch.sparse is not None:  # on the main fine depth and the augmentations, not on main coarse
-            renders = [sparse.main.fine, *sparse.augmented.values()]
-            losses["sparse_depth"] = sparse_depth_loss(renders, batch.sparse.depth, batch.sparse.weight)
-        for pair in self.depth_pairs(random):  # L_ap, L_av, L_cfc: masked, free before the warm-up ends
-            if self.loss_weights[pair.name] > 0:
-                losses[pair.name] = self.masked_depth_loss(pair, batch.random)
-        if "cfc" in losses and batch.sparse is not None and self.hparams.coarse_fine_on_sparse_rays:
-            losses["cfc"] = losses["cfc"] + coarse_fine_sparse_loss(sparse.main.coarse, sparse.main.fine)
-        loss = sum(self.loss_weights[name] * value for name, value in losses.items())
-        if (regularization := self.field_regularization()) is not None:  # a grid field's own (weighted) terms
-            losses["regularization"] = regularization
-            loss = loss + regularization
+        # L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc (paper Sec. 4.4): the colour and masked depth terms are
+        # on the random rays, the sparse-depth terms on the sparse-depth rays.
+        if self.hparams.backward_per_part and batch.sparse is not None:
+            random = self.render(batch.random.rays, randomized=True)
+            losses = self.random_ray_losses(random, batch.random)
+            random_loss = self.weighted(losses)
+            random_loss.backward()  # frees the random rays' activations before the sparse rays are rendered
+            sparse_losses = self.sparse_ray_losses(self.render(batch.sparse.rays, randomized=True), batch)
+            loss = self.weighted(sparse_losses, regularize=True) + random_loss.detach()
+        else:  # one pass over the random rays followed by the sparse-depth rays, then split
+            random, sparse = self.render(batch.rays, randomized=True).split(len(batch.random))
+            losses, sparse_losses = self.random_ray_losses(random, batch.random), self.sparse_ray_losses(sparse, batch)
+            loss = self.weighted(losses) + self.weighted(sparse_losses, regularize=True)
+        for name, value in sparse_losses.items():  # L_cfc has a part on each kind of ray
+            losses[name] = losses[name] + value if name in losses else value
 
         # sync_dist: under DDP every rank trains on its own rays; the logged values are their mean (no-op otherwise).
         self.log_dict({f"train/loss_{name}": value for name, value in losses.items()}, sync_dist=True)
@@ -148,6 +153,37 @@ class SimpleNeRF(L.LightningModule):
         self.log_dict({"train/loss": loss, "train/psnr_fine": train_psnr}, sync_dist=True)
         self.log("loss", loss, prog_bar=True, logger=False)
         return loss
+
+    def random_ray_losses(self, renders: Renders, rays: RayBatch) -> dict[str, torch.Tensor]:
+        """Lcolor on main coarse, main fine and each augmentation; L_ap, L_av, L_cfc with their reliability masks
+        (free, not even the mask, while a term's weight is 0: the warm-up)."""
+        augmented = list(renders.augmented.values())
+        losses = {"color": color_loss([renders.main.coarse, renders.main.fine, *augmented], rays.rgb)}
+        for pair in self.depth_pairs(renders):
+            if self.loss_weights[pair.name] > 0:
+                losses[pair.name] = self.masked_depth_loss(pair, rays)
+        return losses
+
+    def sparse_ray_losses(self, renders: Renders, batch: TrainingBatch) -> dict[str, torch.Tensor]:
+        """Lsd on main fine and each augmentation (not main coarse), and the release's unmasked part of L_cfc."""
+        if batch.sparse is None:
+            return {}
+        fine_and_augmented = [renders.main.fine, *renders.augmented.values()]
+        losses = {"sparse_depth": sparse_depth_loss(fine_and_augmented, batch.sparse.depth, batch.sparse.weight)}
+        cfc_on = self.coarse_fine_mask is not None and self.loss_weights["cfc"] > 0
+        if cfc_on and self.hparams.coarse_fine_on_sparse_rays:
+            losses["cfc"] = coarse_fine_sparse_loss(renders.main.coarse, renders.main.fine)
+        return losses
+
+    def weighted(self, losses: dict[str, torch.Tensor], regularize: bool = False) -> torch.Tensor:
+        """sum of loss_weights[name] * term, plus (with `regularize`) the fields' own regularisers, which are then
+        logged as the term "regularization"."""
+        total = sum((self.loss_weights[name] * value for name, value in losses.items()),
+                    torch.zeros((), device=self.device))
+        if regularize and (regularization := self.field_regularization()) is not None:
+            losses["regularization"] = regularization
+            total = total + regularization
+        return total
 
     def depth_pairs(self, renders: Renders) -> list[DepthPair]:
         """Every masked depth loss of these renders: L_ap, L_av, ... (one per augmentation), then L_cfc."""

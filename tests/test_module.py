@@ -167,3 +167,21 @@ def test_reliability_maps_of_a_train_view(datamodule, monkeypatch):
         assert bool((m[:2] == 0).all())  # within k // 2 of the border nothing is reliable
     picture = mask_picture(torch.tensor([[1.0, 0.0, -1.0]]))
     assert picture.shape == (1, 3, 3) and picture[0, :, 0].tolist() == [0, 128, 255]
+
+
+def test_backward_per_part_gives_the_one_pass_loss_and_gradient(datamodule, monkeypatch):
+    """Random rays then sparse-depth rays in two backward passes: the same total loss and gradient as one pass
+    (rendering made deterministic here, since the two ways draw jitter and noise in a different order)."""
+    results = []
+    for per_part in (False, True):
+        model = simplenerf_module(backward_per_part=per_part)
+        render = model.render
+        monkeypatch.setattr(model, "render", lambda rays, randomized, f=render: f(rays, randomized=False))
+        loss, logged = run_step(model, datamodule, monkeypatch)
+        loss.backward()
+        grads = torch.cat([p.grad.flatten() for p in model.parameters() if p.grad is not None])
+        results.append((loss.detach(), grads, {k: float(v) for k, v in logged.items() if "loss" in k}))
+    (loss_a, grad_a, logged_a), (loss_b, grad_b, logged_b) = results
+    assert torch.allclose(loss_a, loss_b, rtol=1e-5) and logged_a == pytest.approx(logged_b, rel=1e-5)
+    assert {"train/loss_sparse_depth", "train/loss_cfc", "train/loss_points"} <= set(logged_a)
+    assert grad_a.shape == grad_b.shape and torch.allclose(grad_a, grad_b, rtol=1e-4, atol=1e-7)

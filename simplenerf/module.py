@@ -119,7 +119,7 @@ class SimpleNeRF(L.LightningModule):
         return bool(self.augmentations) or self.coarse_fine_mask is not None
 
     def on_fit_start(self) -> None:
-        if self.hparams.backward_per_part and self.trainer.world_size > 1:
+        if self.hparams.backward_per_part and getattr(self.trainer, "world_size", 1) > 1:
             raise SimpleNeRFError("backward_per_part runs two backward passes per step, which DDP's gradient "
                                   "synchronisation does not allow: set --model.backward_per_part false with DDP")
         if self.needs_masks:

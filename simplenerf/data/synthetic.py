@@ -4,13 +4,22 @@ The scene is the project's embedded default data (used by the CPU demo) and the 
 reprojection and mask tests, so every pixel is defined by a single analytic ray-plane intersection:
 
 - World axes are OpenGL-style (x right, y up, z backwards; cameras look along -z).
-- Planes: an infinite textured background plane at z = -10, three bounded fronto-parallel rectangles at z of about
-  -7, -5 and -3.2 and one bounded slanted rectangle at about z = -6, placed so that they partially occlude each other
-  and the background. Textures are smooth, band-limited procedural patterns (sums of random sinusoids plus a soft
-  checker, squashed by tanh) in each plane's own 2D coordinates, with wavelengths proportional to the plane's depth
-  so that they look alike on screen, carry many SIFT keypoints and do not alias at low resolution.
-- Cameras: a jittered grid of centres in the x-y plane near z = 0 (baseline ~0.6, about 19% of the nearest depth),
-  each looking at the scene centre (0, 0, -6) with a small random roll.
+- Two kinds of scene (`build_scene(kind=...)`), both made of planes only:
+  - "planes" (the default, pinned by the tests): an infinite textured background plane at z = -10, three bounded
+    fronto-parallel rectangles at z of about -7, -5 and -3.2 and one bounded slanted rectangle at about z = -6,
+    placed so that they partially occlude each other and the background. Textures are smooth, band-limited
+    procedural patterns (sums of random sinusoids plus a soft checker, squashed by tanh) in each plane's own 2D
+    coordinates, with wavelengths proportional to the plane's depth so that they look alike on screen, carry many
+    SIFT keypoints and do not alias at low resolution.
+  - "objects" (the grid demo's): a scene a person recognises, with pictures drawn by cv2 (`ImageTexture`): a wall at
+    z = -10 with wooden panelling, a poster ("NeRF", mountains), text ("SimpleNeRF") and a clock; a checkered floor
+    receding from z = -3.2 to -10; a dice (three faces: a box) at about z = -6; a calibration checkerboard turned
+    25 degrees at z = -3.6; a round dartboard at z = -5; a hazard-striped "STOP" sign at z = -8.5 and a slanted
+    poster ("3D", colour bars) at z = -7.8. Large plain areas (wall, dice faces) next to textured ones are where
+    few-view depth is ambiguous.
+- Cameras: "planes": a jittered grid of centres in the x-y plane near z = 0 (baseline ~0.6, about 19% of the nearest
+  depth); "objects": a handheld-like left-to-right sweep (x from -0.3 to 0.3, a +-0.06 vertical wave). Each camera
+  looks at the scene centre (0, 0, -6) with a small random roll.
 - Pixel (u, v) (u = column, v = row) is the ray through the integer image coordinate (u, v), no +0.5, with
   camera-frame direction [(u - cx) / f, -(v - cy) / f, -1], cx = W / 2, cy = H / 2, exactly as in
   `geometry.rays`. Its colour is the texture at the first hit (point-sampled) and its depth is the camera z-depth
@@ -32,238 +41,50 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from simplenerf.data.llff import LLFFDataModule
+from simplenerf.data.synthetic_objects import _objects
+from simplenerf.data.synthetic_scene import (
+    FORMAT_VERSION,
+    HFOV_DEGREES,
+    SCENE_CENTRE,
+    SCENE_KINDS,
+    SyntheticScene,
+    _camera_centres,
+    _check_factor,
+    _look_at,
+    _noise_planes,
+    _sweep_centres,
+)
 
-# Bump whenever the generated content changes, so that cached scenes on disk are rebuilt instead of reused.
-FORMAT_VERSION = 1
-HFOV_DEGREES = 55.0
-BACKGROUND_Z = -10.0
-SCENE_CENTRE = (0.0, 0.0, -6.0)
-NUM_SINUSOIDS = 16
 
+def build_scene(
+    seed: int = 0, *, height: int = 96, width: int = 128, n_frames: int = 20, kind: str = "planes"
+) -> SyntheticScene:
+    """The scene description (no rendering). Everything random comes from `np.random.default_rng(seed)`.
 
-@dataclass(frozen=True)
-class Texture:
-    """Procedural colour in a plane's 2D coordinates (s, t), in world units.
-
-    colour(s, t) = 0.5 + 0.5 * tanh(bias + sum_k amps[k] * colours[k] * sin(2 pi freqs[k] . (s, t) + phases[k])
-                                    + checker_strength * soft_checker(s, t))
+    `kind`: "planes" (the default: colour-noise textures on five planes, what the tests pin) or "objects" (pictures a
+    person recognises: a wall with a poster, text and a clock, a checkered floor, a dice, a calibration board, a
+    dartboard, a sign and a slanted poster; the seed moves only the cameras, which sweep from left to right).
     """
-
-    bias: np.ndarray  # [3], pre-tanh base colour
-    freqs: np.ndarray  # [K, 2], cycles per world unit
-    phases: np.ndarray  # [K]
-    amps: np.ndarray  # [K]
-    colours: np.ndarray  # [K, 3], unit-norm colour directions
-    checker_period: float
-    checker_strength: float
-
-    def __call__(self, s: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Colour [..., 3] float32 in (0, 1) at plane coordinates s, t [...]."""
-        return self.channels_first(s, t).T.reshape(np.shape(s) + (3,))
-
-    def channels_first(self, s: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Colour [3, P] float32 of the flattened s, t: channel planes are what image assembly copies fastest."""
-        # float32 throughout: the transcendentals are ~10x faster than in float64 and phases of at most ~100 rad
-        # lose ~1e-5, far below the 8-bit output. [K, P] layouts keep every product a contiguous vectorised op.
-        s32 = np.asarray(s, dtype=np.float32).reshape(1, -1)
-        t32 = np.asarray(t, dtype=np.float32).reshape(1, -1)
-        f32 = (2.0 * np.pi * self.freqs).astype(np.float32)
-        phase = f32[:, 0:1] * s32 + f32[:, 1:2] * t32 + self.phases.astype(np.float32)[:, None]
-        weights = (self.colours.T * self.amps).astype(np.float32)  # [3, K]
-        logits = weights @ np.sin(phase) + self.bias.astype(np.float32)[:, None]  # [3, P]
-        # tanh of a product of sines keeps the checker smooth (band-limited up to a few harmonics) but corner-rich.
-        w = np.float32(2.0 * np.pi / self.checker_period)
-        checker = np.tanh(np.float32(2.0) * np.sin(w * s32) * np.sin(w * t32))
-        logits += np.float32(self.checker_strength / math.tanh(2.0)) * checker
-        return np.float32(0.5) + np.float32(0.5) * np.tanh(logits)
-
-
-@dataclass(frozen=True)
-class Plane:
-    """A textured planar patch: points centre + s * axis_s + t * axis_t with |s| <= half_extent[0], |t| <= ...[1].
-
-    The background uses an infinite half extent. `normal` = axis_s x axis_t points towards the cameras (+z).
-    """
-
-    name: str
-    centre: np.ndarray  # [3]
-    axis_s: np.ndarray  # [3], unit
-    axis_t: np.ndarray  # [3], unit, orthogonal to axis_s
-    half_extent: tuple[float, float]
-    texture: Texture
-
-    @property
-    def normal(self) -> np.ndarray:
-        return np.cross(self.axis_s, self.axis_t)
-
-    @property
-    def bounded(self) -> bool:
-        return bool(np.isfinite(self.half_extent[0]) and np.isfinite(self.half_extent[1]))
-
-    def describe(self) -> dict[str, object]:
-        """JSON-friendly summary (for scene.json)."""
-        return {
-            "name": self.name,
-            "centre": self.centre.tolist(),
-            "axis_s": self.axis_s.tolist(),
-            "axis_t": self.axis_t.tolist(),
-            "normal": self.normal.tolist(),
-            "half_extent": list(self.half_extent) if self.bounded else None,
-            "texture_wavelengths": (1.0 / np.linalg.norm(self.texture.freqs, axis=1)).tolist(),
-            "checker_period": self.texture.checker_period,
-        }
-
-
-@dataclass(frozen=True)
-class SyntheticScene:
-    """Planes, cameras and full-resolution intrinsics of one synthetic scene.
-
-    planes[0] is always the infinite background. c2w is [N, 3, 4] in OpenGL axes (columns right, up, back, centre).
-    `focal` belongs to the full resolution (height, width); at factor k use focal / k and the centre of the smaller
-    image (`intrinsics`).
-    """
-
-    seed: int
-    height: int
-    width: int
-    focal: float
-    planes: tuple[Plane, ...]
-    c2w: np.ndarray  # [N, 3, 4] float64
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.c2w.shape[0])
-
-    def intrinsics(self, factor: int = 1) -> tuple[int, int, float]:
-        """(height, width, focal) of the images at `factor`; the principal point is (width / 2, height / 2)."""
-        _check_factor(self.height, self.width, factor)
-        return self.height // factor, self.width // factor, self.focal / factor
-
-
-def _check_factor(height: int, width: int, factor: int) -> None:
-    if not isinstance(factor, (int, np.integer)) or factor < 1:
-        raise ValueError(f"factors must be positive integers, got {factor!r}")
-    if height % factor or width % factor:
-        raise ValueError(
-            f"full resolution {height}x{width} (HxW) is not divisible by factor {factor}; "
-            f"choose height and width that are multiples of every requested factor"
-        )
-
-
-def _rotation_xy(yaw: float, pitch: float) -> np.ndarray:
-    """R = R_y(yaw) @ R_x(pitch)."""
-    cy, sy, cp, sp = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch)
-    r_y = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
-    r_x = np.array([[1.0, 0.0, 0.0], [0.0, cp, -sp], [0.0, sp, cp]])
-    return r_y @ r_x
-
-
-def _random_texture(rng: np.random.Generator, distance: float) -> Texture:
-    # Wavelengths scale with the viewing distance so every plane has the same on-screen band: ~5-31 px at the default
-    # 128-px width (still above the 2-px Nyquist limit at 64 px) and ~19-121 px at 504 px, where SIFT finds ~700
-    # keypoints per view. Many random orientations avoid stripe-like, repetitive (ambiguous to match) patterns.
-    wavelengths = distance * np.exp(rng.uniform(math.log(0.04), math.log(0.25), NUM_SINUSOIDS))
-    angles = rng.uniform(0.0, np.pi, NUM_SINUSOIDS)
-    freqs = np.stack([np.cos(angles), np.sin(angles)], axis=1) / wavelengths[:, None]
-    colours = rng.normal(size=(NUM_SINUSOIDS, 3))
-    colours /= np.linalg.norm(colours, axis=1, keepdims=True)
-    return Texture(
-        bias=rng.uniform(-1.0, 1.0, 3),
-        freqs=freqs,
-        phases=rng.uniform(0.0, 2.0 * np.pi, NUM_SINUSOIDS),
-        amps=rng.uniform(0.3, 0.6, NUM_SINUSOIDS),
-        colours=colours,
-        checker_period=float(distance * rng.uniform(0.15, 0.25)),
-        checker_strength=float(rng.uniform(0.3, 0.5)),
-    )
-
-
-def _fronto(
-    rng: np.random.Generator, name: str, centre: Sequence[float], half: Sequence[float], jitter: float
-) -> Plane:
-    centre_arr = np.asarray(centre, dtype=np.float64) + rng.uniform(-jitter, jitter, 3)
-    half_extent = (float(half[0] * rng.uniform(0.9, 1.1)), float(half[1] * rng.uniform(0.9, 1.1)))
-    return Plane(
-        name=name,
-        centre=centre_arr,
-        axis_s=np.array([1.0, 0.0, 0.0]),
-        axis_t=np.array([0.0, 1.0, 0.0]),
-        half_extent=half_extent,
-        texture=_random_texture(rng, -float(centre_arr[2])),
-    )
-
-
-def _camera_centres(rng: np.random.Generator, n_frames: int) -> np.ndarray:
-    cols = max(1, round(math.sqrt(n_frames * 1.5)))
-    rows = math.ceil(n_frames / cols)
-    xs = np.linspace(-0.3, 0.3, cols) if cols > 1 else np.zeros(1)
-    ys = np.linspace(0.2, -0.2, rows) if rows > 1 else np.zeros(1)
-    grid = np.array([(x, y, 0.0) for y in ys for x in xs])[:n_frames]
-    jitter = rng.uniform(-1.0, 1.0, (n_frames, 3)) * np.array([0.03, 0.03, 0.05])
-    return grid + jitter
-
-
-def _look_at(centre: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
-    back = centre - target
-    back /= np.linalg.norm(back)
-    right = np.cross(np.array([0.0, 1.0, 0.0]), back)
-    right /= np.linalg.norm(right)
-    up = np.cross(back, right)
-    # Roll about the viewing axis so that the rotations are not all yaw/pitch-only.
-    c, s = math.cos(roll), math.sin(roll)
-    right, up = c * right + s * up, -s * right + c * up
-    return np.concatenate([np.stack([right, up, back], axis=1), centre[:, None]], axis=1)
-
-
-def build_scene(seed: int = 0, *, height: int = 96, width: int = 128, n_frames: int = 20) -> SyntheticScene:
-    """The scene description (no rendering). Everything random comes from `np.random.default_rng(seed)`."""
     if n_frames < 1:
         raise ValueError(f"n_frames must be >= 1, got {n_frames}")
     if height < 1 or width < 1:
         raise ValueError(f"height and width must be positive, got {height}x{width}")
+    if kind not in SCENE_KINDS:
+        raise ValueError(f"kind must be one of {SCENE_KINDS}, got {kind!r}")
     rng = np.random.default_rng(seed)
-    background = Plane(
-        name="background",
-        centre=np.array([0.0, 0.0, BACKGROUND_Z]),
-        axis_s=np.array([1.0, 0.0, 0.0]),
-        axis_t=np.array([0.0, 1.0, 0.0]),
-        half_extent=(math.inf, math.inf),
-        texture=_random_texture(rng, -BACKGROUND_Z),
-    )
-    # The layout skeleton is fixed (only jittered) so that occlusions between the planes exist for every seed.
-    far = _fronto(rng, "far_rect", (-1.2, 0.6, -7.0), (1.6, 1.2), 0.25)
-    mid = _fronto(rng, "mid_rect", (1.0, -0.3, -5.0), (1.0, 1.0), 0.25)
-    near = _fronto(rng, "near_rect", (-0.3, -0.5, -3.2), (0.5, 0.4), 0.15)
-    slant_centre = np.array([1.6, 1.3, -6.0]) + rng.uniform(-0.15, 0.15, 3)
-    slant_rot = _rotation_xy(math.radians(rng.uniform(30.0, 40.0)), math.radians(rng.uniform(-15.0, -5.0)))
-    slanted = Plane(
-        name="slanted_rect",
-        centre=slant_centre,
-        axis_s=slant_rot[:, 0],
-        axis_t=slant_rot[:, 1],
-        half_extent=(float(rng.uniform(0.75, 0.85)), float(rng.uniform(0.55, 0.65))),
-        texture=_random_texture(rng, -float(slant_centre[2])),
-    )
-    centres = _camera_centres(rng, n_frames)
+    planes = _noise_planes(rng) if kind == "planes" else _objects()
+    centres = _camera_centres(rng, n_frames) if kind == "planes" else _sweep_centres(rng, n_frames)
     rolls = np.radians(rng.uniform(-1.5, 1.5, n_frames))
     target = np.asarray(SCENE_CENTRE)
     c2w = np.stack([_look_at(c, target, float(r)) for c, r in zip(centres, rolls, strict=True)])
     focal = 0.5 * width / math.tan(0.5 * math.radians(HFOV_DEGREES))
-    return SyntheticScene(
-        seed=seed,
-        height=height,
-        width=width,
-        focal=focal,
-        planes=(background, far, mid, near, slanted),
-        c2w=c2w,
-    )
+    return SyntheticScene(seed=seed, height=height, width=width, focal=focal, planes=planes, c2w=c2w, kind=kind)
 
 
 def pixel_rays(c2w: np.ndarray, height: int, width: int, focal: float) -> tuple[np.ndarray, np.ndarray]:
@@ -301,7 +122,9 @@ def _first_hits(
         hit = (np.abs(denom) > 1e-12) & (t > 0.0) & (t < best_t)
         s_coord = dot_origin(plane.axis_s) - plane.axis_s @ plane.centre + t * dot_dir(plane.axis_s)
         t_coord = dot_origin(plane.axis_t) - plane.axis_t @ plane.centre + t * dot_dir(plane.axis_t)
-        if plane.bounded:
+        if plane.round:
+            hit &= (s_coord / plane.half_extent[0]) ** 2 + (t_coord / plane.half_extent[1]) ** 2 <= 1.0
+        elif plane.bounded:
             hit &= (np.abs(s_coord) <= plane.half_extent[0]) & (np.abs(t_coord) <= plane.half_extent[1])
         np.copyto(best_t, t, where=hit)
         np.copyto(best_idx, idx, where=hit)
@@ -407,7 +230,9 @@ def _to_uint8(rgb: np.ndarray) -> np.ndarray:
 
 
 def _key(meta: dict[str, object]) -> tuple[object, ...]:
-    return tuple(meta.get(k) for k in ("format_version", "seed", "height", "width", "n_frames"))
+    # Scenes written before there were kinds are "planes" scenes.
+    kind = meta.get("kind", "planes")
+    return (*(meta.get(k) for k in ("format_version", "seed", "height", "width", "n_frames")), kind)
 
 
 def _read_meta(root: Path) -> dict[str, object] | None:
@@ -443,6 +268,7 @@ def _write_scene(scene: SyntheticScene, out: Path, factors: Sequence[int]) -> No
     meta = {
         "format_version": FORMAT_VERSION,
         "seed": scene.seed,
+        "kind": scene.kind,
         "height": scene.height,
         "width": scene.width,
         "n_frames": n,
@@ -468,14 +294,15 @@ def make_synthetic_scene(
     factors: Sequence[int] = (1,),
     seed: int = 0,
     overwrite: bool = False,
+    kind: str = "planes",
 ) -> Path:
     """Writes the synthetic scene to `root` in the LLFF layout (module docstring) and returns `root`.
 
-    `height`/`width` are the full resolution and must be divisible by every factor. If `root` already holds this scene
-    (same seed, size, frame count and format version) with all requested factors, nothing is done; if it lacks some
-    factors it is rebuilt with the union of the factors. A different scene at `root` raises FileExistsError unless
-    `overwrite`. The scene is built in a temporary directory next to `root` and renamed into place, so a crash never
-    leaves a half-written scene.
+    `height`/`width` are the full resolution and must be divisible by every factor. `kind`: see `build_scene`. If
+    `root` already holds this scene (same kind, seed, size, frame count and format version) with all requested
+    factors, nothing is done; if it lacks some factors it is rebuilt with the union of the factors. A different
+    scene at `root` raises FileExistsError unless `overwrite`. The scene is built in a temporary directory next to
+    `root` and renamed into place, so a crash never leaves a half-written scene.
     """
     root = Path(root)
     factors = sorted({int(k) for k in factors})
@@ -483,7 +310,8 @@ def make_synthetic_scene(
         raise ValueError("factors must not be empty")
     for k in factors:
         _check_factor(height, width, k)
-    wanted = {"format_version": FORMAT_VERSION, "seed": seed, "height": height, "width": width, "n_frames": n_frames}
+    wanted = {"format_version": FORMAT_VERSION, "seed": seed, "height": height, "width": width, "n_frames": n_frames,
+              "kind": kind}
     if root.exists():
         meta = _read_meta(root)
         if meta is not None and _key(meta) == _key(wanted):
@@ -494,7 +322,7 @@ def make_synthetic_scene(
             factors = sorted(existing | set(factors))
         elif not overwrite:
             raise FileExistsError(f"{root} exists and does not hold this synthetic scene; pass overwrite=True")
-    scene = build_scene(seed, height=height, width=width, n_frames=n_frames)
+    scene = build_scene(seed, height=height, width=width, n_frames=n_frames, kind=kind)
     root.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{root.name}.tmp-", dir=root.parent))
     try:
@@ -526,24 +354,29 @@ class SyntheticDataModule(LLFFDataModule):
 
     def __init__(
         self, root: str = "data/synthetic", height: int = 96, width: int = 128, n_frames: int = 20,
-        scene_seed: int = 0, **kwargs,
+        scene_seed: int = 0, kind: str = "planes", **kwargs,
     ) -> None:
         """
         Args:
-            root: folder of generated scenes; this one is <root>/seed{scene_seed}_{height}x{width}_{n_frames}.
+            root: folder of generated scenes; this one is <root>/seed{scene_seed}_{height}x{width}_{n_frames}
+                (prefixed `objects_` for that kind).
             height: image height in pixels.
             width: image width in pixels.
             n_frames: number of frames (every test_every-th is a test frame).
             scene_seed: seed of the scene's geometry, textures and cameras.
+            kind: "planes" (colour-noise textures, what the tests pin) or "objects" (pictures a person recognises).
         """
+        prefix = "" if kind == "planes" else f"{kind}_"
         scene_dir = make_synthetic_scene(
-            Path(root) / f"seed{scene_seed}_{height}x{width}_{n_frames}",
+            Path(root) / f"{prefix}seed{scene_seed}_{height}x{width}_{n_frames}",
             height=height,
             width=width,
             n_frames=n_frames,
             seed=scene_seed,
+            kind=kind,
         )
         super().__init__(scene_dir=str(scene_dir), factor=1, **kwargs)
+
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Write the synthetic LLFF-style scene.")
@@ -553,6 +386,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--n-frames", type=int, default=20)
     parser.add_argument("--factors", type=int, nargs="+", default=[1])
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--kind", choices=SCENE_KINDS, default="planes")
     parser.add_argument("--overwrite", action="store_true")
     args = parser.parse_args(argv)
     path = make_synthetic_scene(
@@ -563,6 +397,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         factors=args.factors,
         seed=args.seed,
         overwrite=args.overwrite,
+        kind=args.kind,
     )
     print(path)
 

@@ -83,6 +83,8 @@ class KPlanesField(Field):
         resolutions: list[int] | None = None,
         depth_resolutions: list[int] | None = None,
         features: int = 16,
+        density_scales: int | None = None,
+        residual_scales_to_color: bool = False,
         view_dependent: bool = True,
         view_bands: int = 4,
         hidden: int = 64,
@@ -90,6 +92,7 @@ class KPlanesField(Field):
         tv_weight: float = 1e-4,
         depth_tv_weight: float | None = None,
         init_range: tuple[float, float] = (0.1, 0.5),
+        density_shift: float = 0.0,
     ) -> None:
         """
         Args:
@@ -97,6 +100,10 @@ class KPlanesField(Field):
                 augmentation is the same field with the first (coarsest) scales only.
             depth_resolutions: nodes along z at each scale (None: the same as `resolutions`).
             features: C, feature channels of every plane.
+            density_scales: the density MLP sees the features of the first (coarsest) `density_scales` scales only;
+                None: all (the main field). The grid's analogue of `RadianceField(density_bands=...)`.
+            residual_scales_to_color: feed the features of the other (finer) scales to the colour MLP, as
+                `RadianceField(residual_bands_to_color=True)` does with the high encoding bands.
             view_dependent: colour depends on the view direction (False: the views augmentation).
             view_bands: bands of the direction encoding gamma(v, 0, L_v) fed to the colour MLP (shared with the other
                 fields through the samples' cache).
@@ -106,6 +113,8 @@ class KPlanesField(Field):
                 `regularization`.
             depth_tv_weight: TV weight of the xz and yz planes (None: `tv_weight`).
             init_range: planes are initialised uniformly in this range (K-Planes: (0.1, 0.5)).
+            density_shift: added to the density MLP's output before the exponential (DVGO's "act_shift"): negative
+                values start training from nearly empty space instead of a fog in front of the cameras.
         """
         super().__init__()
         resolutions = [64, 128, 256] if resolutions is None else list(resolutions)
@@ -114,9 +123,15 @@ class KPlanesField(Field):
             raise ValueError(f"need one depth resolution per scale, got {resolutions} and {depth_resolutions}")
         if min(resolutions + depth_resolutions) < 2:
             raise ValueError(f"every axis needs at least 2 nodes, got {resolutions} and {depth_resolutions}")
+        density_scales = len(resolutions) if density_scales is None else density_scales
+        if not 0 < density_scales <= len(resolutions):
+            raise ValueError(f"density_scales must be in [1, {len(resolutions)}], got {density_scales}")
+        if density_scales < len(resolutions) and not residual_scales_to_color:
+            raise ValueError("scales beyond density_scales would be unused; set residual_scales_to_color or drop them")
         self.resolutions, self.depth_resolutions = resolutions, depth_resolutions
+        self.density_scales, self.residual_scales_to_color = density_scales, residual_scales_to_color
         self.features, self.view_dependent, self.view_bands = features, view_dependent, view_bands
-        self.tv_weight = tv_weight
+        self.tv_weight, self.density_shift = tv_weight, density_shift
         self.depth_tv_weight = tv_weight if depth_tv_weight is None else depth_tv_weight
         self.planes = nn.ParameterList()
         for res, res_z in zip(resolutions, depth_resolutions, strict=True):
@@ -125,9 +140,10 @@ class KPlanesField(Field):
                 plane = torch.empty(1, features, nodes[height_axis], nodes[width_axis]).uniform_(*init_range)
                 self.planes.append(nn.Parameter(plane))
         self.density_net = nn.Sequential(
-            nn.Linear(features * len(resolutions), hidden), nn.ReLU(), nn.Linear(hidden, 1 + geometry_features)
+            nn.Linear(features * density_scales, hidden), nn.ReLU(), nn.Linear(hidden, 1 + geometry_features)
         )
-        color_in = geometry_features + (encoded_dim(3, view_bands) if view_dependent else 0)
+        residual = features * (len(resolutions) - density_scales) if residual_scales_to_color else 0
+        color_in = geometry_features + residual + (encoded_dim(3, view_bands) if view_dependent else 0)
         self.color_net = nn.Sequential(nn.Linear(color_in, hidden), nn.ReLU(), nn.Linear(hidden, 3))
 
     def grid_features(self, positions: torch.Tensor) -> torch.Tensor:
@@ -152,14 +168,18 @@ class KPlanesField(Field):
     def forward(self, samples: Samples) -> FieldOutputs:
         """Density and colour at the samples' NDC positions (and view directions if `view_dependent`)."""
         rays, num = samples.positions.shape[:2]
-        h = self.density_net(self.grid_features(samples.positions.reshape(-1, 3)))  # [R S, 1 + G]
-        color_in = h[:, 1:]
+        features = self.grid_features(samples.positions.reshape(-1, 3))  # [R S, C scales]
+        split = self.features * self.density_scales
+        h = self.density_net(features[:, :split])  # [R S, 1 + G]
+        color_in = [h[:, 1:]]
+        if self.residual_scales_to_color:
+            color_in.append(features[:, split:])
         if self.view_dependent:
             dirs = samples.encoded_directions(self.view_bands)  # [R, D]
-            dirs = dirs[:, None, :].expand(rays, num, dirs.shape[-1]).reshape(rays * num, -1).to(color_in.dtype)
-            color_in = torch.cat([color_in, dirs], dim=-1)
-        rgb = torch.sigmoid(self.color_net(color_in))
-        return FieldOutputs(raw_density=trunc_exp(h[:, 0]).view(rays, num), rgb=rgb.view(rays, num, 3))
+            color_in.append(dirs[:, None, :].expand(rays, num, dirs.shape[-1]).reshape(rays * num, -1).to(h.dtype))
+        rgb = torch.sigmoid(self.color_net(torch.cat(color_in, dim=-1)))
+        raw_density = trunc_exp(h[:, 0] + self.density_shift)
+        return FieldOutputs(raw_density=raw_density.view(rays, num), rgb=rgb.view(rays, num, 3))
 
     def parameter_groups(self) -> dict[str, list[nn.Parameter]]:
         """{"grid": the planes, "decoder": the MLPs}: grids train with a much larger learning rate than MLPs."""

@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import pytest
 import torch
+import yaml
 
 from simplenerf.model.fields import Field
 from simplenerf.model.grid import KPlanesField, plane_tv, sample_plane, trunc_exp
 from simplenerf.model.samples import Samples
+from tests.conftest import REPO
+from tests.data.test_realestate import write_clip
+from tests.test_cli import run
 
 
 def node(index: int, nodes: int) -> float:
@@ -137,3 +144,87 @@ def test_bad_sizes_are_errors():
         KPlanesField(resolutions=[8, 16], depth_resolutions=[8])
     with pytest.raises(ValueError, match="at least 2 nodes"):
         KPlanesField(resolutions=[1])
+
+
+# The grid configs through the real command line (a few steps each; files in a tmp folder).
+
+GRID = REPO / "configs" / "grid"
+FEW_STEPS = ["--trainer.max_steps", "2", "--trainer.val_check_interval", "2", "--checkpoint.every_n_train_steps", "2",
+             "--data.init_args.rays_per_batch", "64", "--model.chunk", "4096"]
+
+
+def run_dirs(tmp: Path, name: str) -> list[str]:
+    out = str(tmp / name)
+    return ["--trainer.default_root_dir", out, "--trainer.logger.init_args.save_dir", out]
+
+
+@pytest.fixture(scope="module")
+def grid_demo(tmp_path_factory) -> Path:
+    """2 steps of the grid demo (SimpleNeRF, K-Planes, the "objects" scene with SfM depth), then `test`."""
+    tmp = tmp_path_factory.mktemp("grid_demo")
+    args = ["--config", str(GRID / "demo.yaml"), *FEW_STEPS, "--data.init_args.sparse_rays_per_batch", "32",
+            "--data.init_args.root", str(tmp / "data"), "--data.init_args.sparse_depth_cache", str(tmp / "cache"),
+            *run_dirs(tmp, "run")]
+    run("fit", *args)
+    run("test", *args, "--ckpt_path", "last", "--evaluation.lpips", "false")
+    return tmp
+
+
+def test_grid_demo_trains_grids_and_tests_through_the_cli(grid_demo):
+    last = torch.load(grid_demo / "run" / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert last["global_step"] == 2
+    state = last["state_dict"]
+    assert state["nerf.fine.planes.6"].shape == (1, 16, 128, 128)  # the finest scale's xy plane
+    assert state["augmentations.0.field.planes.0"].shape == (1, 8, 32, 32)  # points: the coarsest scale only
+    assert "augmentations.0.field.planes.3" not in state
+    assert state["augmentations.1.field.color_net.0.weight"].shape[1] == 15  # views: no direction input
+    # Adam kept one learning rate per parameter group: the planes' and the decoders'.
+    groups = {g["name"]: g["lr"] for g in last["optimizer_states"][0]["param_groups"]}
+    assert groups["grid"] > groups["decoder"]
+    summary = json.loads((grid_demo / "run" / "test" / "summary.json").read_text())
+    assert 0 < summary["psnr"] < 100 and summary["depth_mae"] >= 0  # the scene's exact depth is the reference
+    assert (grid_demo / "data" / "objects_seed0_96x128_20" / "depths").is_dir()
+
+
+def test_grid_demo_dsnerf_fits(grid_demo):
+    args = ["--config", str(GRID / "demo_dsnerf.yaml"), *FEW_STEPS, "--data.init_args.sparse_rays_per_batch", "32",
+            "--data.init_args.root", str(grid_demo / "data"),
+            "--data.init_args.sparse_depth_cache", str(grid_demo / "cache"), *run_dirs(grid_demo, "dsnerf")]
+    run("fit", *args)
+    last = torch.load(grid_demo / "dsnerf" / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert last["global_step"] == 2 and not any(k.startswith("augmentations.") for k in last["state_dict"])
+
+
+@pytest.mark.parametrize("variant", ["simplenerf", "dsnerf"])
+def test_llff_grid_configs_fit_on_an_llff_scene(variant, synthetic_scene, tmp_path):
+    """The LLFF grid configs on the generated LLFF-layout scene (factor 1, 48x64, 2 views; SfM needs more pixels)."""
+    run("fit", "--config", str(GRID / f"{variant}.yaml"), "--config", str(REPO / "configs/overrides/views/2.yaml"),
+        *FEW_STEPS, "--data.init_args.scene_dir", str(synthetic_scene), "--data.init_args.factor", "1",
+        "--data.init_args.sparse_rays_per_batch", "0", *run_dirs(tmp_path, "run"))
+    last = torch.load(tmp_path / "run" / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert last["global_step"] == 2 and last["state_dict"]["nerf.fine.planes.9"].shape == (1, 16, 512, 512)
+
+
+@pytest.mark.parametrize("variant", ["realestate_simplenerf", "realestate_dsnerf"])
+def test_realestate_grid_configs_fit_on_a_clip(variant, tmp_path):
+    scene, _ = write_clip(tmp_path / "clips")
+    run("fit", "--config", str(GRID / f"{variant}.yaml"), "--config", str(REPO / "configs/overrides/views/3.yaml"),
+        *FEW_STEPS, "--data.init_args.scene_dir", str(scene), "--data.init_args.sparse_rays_per_batch", "0",
+        *run_dirs(tmp_path, "run"))
+    last = torch.load(tmp_path / "run" / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert last["global_step"] == 2
+
+
+@pytest.mark.parametrize(("simple", "baseline"), [("demo", "demo_dsnerf"), ("simplenerf", "dsnerf"),
+                                                  ("realestate_simplenerf", "realestate_dsnerf")])
+def test_grid_dsnerf_configs_are_the_simplenerf_ones_without_the_simplifiers(simple, baseline):
+    a = yaml.safe_load((GRID / f"{simple}.yaml").read_text())
+    b = yaml.safe_load((GRID / f"{baseline}.yaml").read_text())
+    assert len(a["model"]["augmentations"]) == 2 and b["model"]["augmentations"] == []
+    assert b["model"]["coarse_fine_mask"] is None and "callbacks" not in b["trainer"]
+    for config in (a, b):
+        for key in ("augmentations", "coarse_fine_mask", "coarse_fine_weight", "coarse_fine_on_sparse_rays",
+                    "supervision"):
+            config["model"].pop(key, None)
+        config.pop("trainer")
+    assert a == b

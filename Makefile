@@ -24,17 +24,19 @@ $(VENV)/.installed: pyproject.toml
 
 setup: $(VENV)/.installed
 
-DSNERF := --config configs/demo.yaml --config configs/overrides/demo_dsnerf.yaml
+# The demo: grid (K-Planes) SimpleNeRF and its DS-NeRF baseline on the built-in "objects" scene (configs/grid/).
+DEMO := --config configs/grid/demo.yaml
+DSNERF := --config configs/grid/demo_dsnerf.yaml
 
 demo: $(VENV)/.installed
-	$(PY) -m simplenerf fit --config configs/demo.yaml
-	$(PY) -m simplenerf test --config configs/demo.yaml --ckpt_path last
-	$(PY) -m simplenerf fit $(DSNERF)
+	$(PY) -m simplenerf fit $(DEMO) --overwrite true
+	$(PY) -m simplenerf test $(DEMO) --ckpt_path last
+	$(PY) -m simplenerf fit $(DSNERF) --overwrite true
 	$(PY) -m simplenerf test $(DSNERF) --ckpt_path last
-	$(PY) tools/render_video.py --config configs/demo.yaml --ckpt runs/demo/checkpoints/last.ckpt --factor-down 2
-	@echo "Test metrics on the synthetic scene (3 views, same budget), renders in runs/demo*/test:"
-	@$(PY) tools/compare_runs.py SimpleNeRF=runs/demo DS-NeRF=runs/demo_dsnerf
-	@echo "SimpleNeRF's spiral video ([RGB | depth]): runs/demo/video_spiral.mp4"
+	$(PY) tools/render_video.py $(DEMO) --ckpt runs/grid_demo/checkpoints/last.ckpt --factor-down 2
+	@echo "Test metrics on the synthetic 'objects' scene (3 views, same budget), renders in runs/grid_demo*/test:"
+	@$(PY) tools/compare_runs.py SimpleNeRF=runs/grid_demo DS-NeRF=runs/grid_demo_dsnerf
+	@echo "SimpleNeRF's spiral video ([RGB | depth]): runs/grid_demo/video_spiral.mp4"
 
 test: $(VENV)/.installed
 	$(PY) -m pytest -q

@@ -4,7 +4,8 @@
 
 Rows: the paper's MLP (`RadianceField()`, 8x256, 63 + 27 encoded inputs), the CPU configs' 4x64 MLP, the shipped
 K-Planes fields (`simplenerf.model.grid.KPlanesField`) at the sizes of configs/grid/*.yaml, and the other pure-PyTorch
-grids considered for the grid backbone, each with the same small decoder (features -> 64 -> 4): TensoRF's VM
+grids considered for the grid backbone, each with the same small decoder (features -> 64 -> 4; K-Planes too, for a
+like-for-like row): TensoRF's VM
 decomposition, multi-resolution dense 3D grids (`F.grid_sample` on volumes) and a multi-resolution hash grid
 (Instant-NGP's encoding, gather based). Printed: parameters, median milliseconds per step, microseconds per sample
 point, CPU seconds per step (process time, which a machine shared with other jobs distorts less than wall time).
@@ -28,6 +29,18 @@ from simplenerf.model.samples import Samples
 
 def decoder(in_dim: int) -> nn.Module:
     return nn.Sequential(nn.Linear(in_dim, 64), nn.ReLU(), nn.Linear(64, 4))
+
+
+class KPlanesEncoder(nn.Module):
+    """The shipped K-Planes planes (`KPlanesField.grid_features`) with the same decoder as the other grids."""
+
+    def __init__(self, resolutions: list[int], features: int) -> None:
+        super().__init__()
+        self.field = KPlanesField(resolutions=resolutions, features=features)
+        self.decoder = decoder(features * len(resolutions))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.decoder(self.field.grid_features(x))
 
 
 class TensoRFVM(nn.Module):
@@ -143,6 +156,8 @@ def candidates() -> list[tuple[str, nn.Module, Callable]]:
                                                           depth_resolutions=[32, 64, 128, 128], features=16)),
     ]
     encoders = [
+        ("K-Planes [32,64,128] C16 (same decoder)", KPlanesEncoder([32, 64, 128], 16)),
+        ("K-Planes [64,128,256] C16 (same decoder)", KPlanesEncoder([64, 128, 256], 16)),
         ("TensoRF-VM 128 R16", TensoRFVM(128, 16)),
         ("TensoRF-VM 256 R16", TensoRFVM(256, 16)),
         ("dense 3D [32,64,96] C4", DenseGrids([32, 64, 96], 4)),

@@ -40,3 +40,25 @@ def markdown_table(summaries: dict[str, dict]) -> str:
         cells = [f"{summary[m]:.4f}" if summary.get(m) is not None else "-" for m in metrics]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def seed_table(groups: dict[str, list[dict]]) -> str:
+    """One row per model over several runs (e.g. seeds): each metric as mean ± sample standard deviation (n - 1 in
+    the denominator; 0 for a single run), and the number of runs."""
+    every = [s for summaries in groups.values() for s in summaries]
+    metrics = [m for m in (*ALL_METRICS, *HELDOUT) if any(s.get(m) is not None for s in every)]
+    arrow = {m: "↓" if m in LOWER_IS_BETTER else "↑" for m in metrics}
+    lines = ["| model | runs | " + " | ".join(f"{m} {arrow[m]}" for m in metrics) + " |",
+             "|---|---:|" + "---:|" * len(metrics)]
+    for name, summaries in groups.items():
+        cells = []
+        for m in metrics:
+            values = [s[m] for s in summaries if s.get(m) is not None]
+            if not values:
+                cells.append("-")
+                continue
+            mean = sum(values) / len(values)
+            var = sum((v - mean) ** 2 for v in values) / (len(values) - 1) if len(values) > 1 else 0.0
+            cells.append(f"{mean:.4f} ± {var**0.5:.4f}")
+        lines.append(f"| {name} | {len(summaries)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)

@@ -202,3 +202,17 @@ def test_fern_two_views_images_8_yield_points() -> None:
         near, far = scene.bounds[scene.split.train[index]]
         # LLFF's bounds come from COLMAP's own points: ours must fall in roughly the same range.
         assert near * 0.9 < np.median(view.depth) < far * 1.1
+
+
+def test_only_essential_matrix_poses_are_compared_with_the_given_poses():
+    """A planar pair's relative pose comes from an ambiguous homography decomposition: no pose warning from it."""
+    from types import SimpleNamespace
+
+    from simplenerf.data.colmap import comparable
+
+    config = pycolmap.TwoViewGeometryConfiguration
+    pair = dict(cam2_from_cam1=pycolmap.Rigid3d(), inlier_matches=np.zeros((10, 2)))
+    assert comparable(SimpleNamespace(config=config.CALIBRATED, **pair))
+    assert not comparable(SimpleNamespace(config=config.PLANAR, **pair))
+    assert not comparable(SimpleNamespace(config=config.PLANAR_OR_PANORAMIC, **pair))
+    assert not comparable(SimpleNamespace(config=config.CALIBRATED, cam2_from_cam1=None, inlier_matches=[]))

@@ -2,7 +2,7 @@ import json
 
 import pytest
 
-from simplenerf.evaluation.compare import load_summaries, markdown_table
+from simplenerf.evaluation.compare import load_summaries, markdown_table, seed_table
 
 
 def test_table_of_two_runs(tmp_path):
@@ -33,3 +33,16 @@ def test_heldout_depth_error_joins_the_table(tmp_path):
     header = "| run | psnr ↑ | ssim ↑ | lpips ↓ | heldout_rel_error_mean ↓ | heldout_rel_error_median ↓ |"
     assert table.splitlines()[0] == header
     assert table.splitlines()[2] == "| A | 20.0000 | 0.5000 | 0.3000 | 0.2500 | 0.1250 |"
+
+
+def test_seed_table_gives_mean_and_sample_std(tmp_path):
+    def summary(psnr, lpips):
+        return {"frames": 3, "psnr": psnr, "ssim": None, "lpips": lpips, "depth_mae": None, "depth_srocc": None}
+
+    groups = {"A": [summary(20.0, 0.3), summary(22.0, 0.5)], "B": [summary(21.0, 0.25)]}
+    assert seed_table(groups).splitlines() == [
+        "| model | runs | psnr ↑ | lpips ↓ |",
+        "|---|---:|---:|---:|",
+        "| A | 2 | 21.0000 ± 1.4142 | 0.4000 ± 0.1414 |",
+        "| B | 1 | 21.0000 ± 0.0000 | 0.2500 ± 0.0000 |",
+    ]

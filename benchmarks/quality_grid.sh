@@ -1,0 +1,79 @@
+#!/usr/bin/env bash
+# Grid SimpleNeRF vs grid DS-NeRF (configs/grid/*.yaml), 2 views, over scenes and seeds: for each run fit, test
+# (full-frame and masked PSNR / SSIM / LPIPS) and, on LLFF scenes, the depth error at held-out SfM points
+# (tools/heldout_depth_error.py); then one table of mean ± std over the seeds per scene and model.
+#
+#   benchmarks/quality_grid.sh fern                          # the configs' budget (3000 steps), seed 0, both models
+#   SEEDS="0 1 2" STEPS=400 benchmarks/quality_grid.sh fern horns realestate
+#   VARIANTS=dsnerf OMP_NUM_THREADS=1 SEEDS="0 1 2" STEPS=400 benchmarks/quality_grid.sh fern &   # two streams on
+#   VARIANTS=simplenerf OMP_NUM_THREADS=1 SEEDS="0 1 2" STEPS=400 benchmarks/quality_grid.sh fern & # a 2-core CPU
+#   TABLE_ONLY=1 SEEDS="0 1 2" benchmarks/quality_grid.sh fern horns realestate   # only the table of finished runs
+#
+# A scene is fern, horns (../shared/data/nerf_llff_data/<name>, images_8), realestate (the RealEstate-10K clip in
+# ../shared/data/realestate10k, 256x256) or the path of a scene folder: an LLFF scene (poses_bounds.npy) or a
+# RealEstate-10K clip (<id>.txt + frames/). STEPS shortens the budget: the learning rate still decays to a tenth by the
+# last step and the warm-up stays 10% of it. Runs: $RUNS/<scene>_seed<S>_<variant> (RUNS default runs/grid).
+# PYTHON (default .venv/bin/python) and EXTRA (more CLI overrides for every fit) can be set.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PYTHON=${PYTHON:-.venv/bin/python}
+RUNS=${RUNS:-runs/grid}
+SEEDS=${SEEDS:-0}
+VARIANTS=${VARIANTS:-simplenerf dsnerf}
+SHARED=${SHARED:-../shared/data}
+export WANDB_MODE=${WANDB_MODE:-offline}
+LPIPS_NPZ=$SHARED/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz
+[ -f "$LPIPS_NPZ" ] && export SIMPLENERF_LPIPS_WEIGHTS=${SIMPLENERF_LPIPS_WEIGHTS:-$(realpath "$LPIPS_NPZ")}
+[ $# -gt 0 ] || { sed -n '2,15p' "$0"; exit 2; }
+
+scene_dir() {  # scene name or path -> folder
+  case $1 in
+    fern|horns) echo "$SHARED/nerf_llff_data/$1" ;;
+    realestate) ls -d "$SHARED"/realestate10k/*/ | head -1 ;;
+    *) echo "$1" ;;
+  esac
+}
+
+budget=()
+if [ -n "${STEPS:-}" ]; then
+  warm=$(( STEPS / 10 ))
+  budget=(--trainer.max_steps "$STEPS" --model.lr_scheduler.init_args.decay_steps "$STEPS"
+          --trainer.val_check_interval "$STEPS" --checkpoint.every_n_train_steps "$STEPS")
+  sched="{points: [[0, 0.0], [$warm, 0.1]], views: [[0, 0.0], [$warm, 0.1]], cfc: [[0, 0.0], [$warm, 0.1]]}"
+fi
+
+table=()
+for scene in "$@"; do
+  dir=$(scene_dir "$scene")
+  [ -d "$dir" ] || { echo "scene folder $dir not found (scene '$scene')" >&2; exit 2; }
+  name=$(basename "$dir")
+  if [ -f "$dir/poses_bounds.npy" ]; then prefix=""; llff=1; else prefix=realestate_; llff=0; fi
+  for seed in $SEEDS; do
+    for variant in $VARIANTS; do
+      run=$RUNS/${name}_seed${seed}_$variant
+      table+=("$name-$variant=$run")
+      [ -n "${TABLE_ONLY:-}" ] && continue
+      config=configs/grid/$prefix$variant.yaml
+      args=(--data.init_args.scene_dir "$dir" --seed_everything "$seed" --data.init_args.seed "$seed" "${budget[@]}")
+      if [ -n "${STEPS:-}" ] && [ "$variant" = simplenerf ]; then
+        args+=(--trainer.callbacks.init_args.schedules "$sched")
+      fi
+      # shellcheck disable=SC2206
+      args+=(${EXTRA:-})
+      start=$(date +%s)
+      "$PYTHON" -m simplenerf fit --config "$config" "${args[@]}" --trainer.default_root_dir "$run" \
+        --trainer.logger.init_args.save_dir "$run" --overwrite true
+      echo "$name $variant seed $seed: fit took $(( $(date +%s) - start )) s" | tee "$run/fit_time.txt"
+      "$PYTHON" -m simplenerf test --config "$config" "${args[@]}" --trainer.logger false \
+        --trainer.default_root_dir "$run" --ckpt_path "$run/checkpoints/last.ckpt"
+      if [ $llff = 1 ]; then
+        "$PYTHON" tools/heldout_depth_error.py --config "$config" --ckpt "$run/checkpoints/last.ckpt" \
+          --out "$run/heldout_depth.json" -- "${args[@]}"
+      fi
+    done
+  done
+done
+
+done_runs=()
+for entry in "${table[@]}"; do [ -f "${entry#*=}/test/summary.json" ] && done_runs+=("$entry"); done
+[ ${#done_runs[@]} -gt 0 ] && "$PYTHON" tools/compare_runs.py "${done_runs[@]}"

@@ -125,9 +125,10 @@ class SimpleNeRF(L.LightningModule):
         if self.needs_masks:
             self.train_views = self.trainer.datamodule.train_views.to(self.device)
 
-    def render(self, rays, randomized: bool) -> Renders:
-        """The main NeRF and every augmentation along `rays` (a `RayBundle`)."""
-        main = self.nerf(rays, randomized=randomized)
+    def render(self, rays, randomized: bool, color: bool = True) -> Renders:
+        """The main NeRF and every augmentation along `rays` (a `RayBundle`); `color` False: depths only (the
+        augmentations are evaluated at the main model's samples, which carry the flag)."""
+        main = self.nerf(rays, randomized=randomized, color=color)
         return Renders(main, {aug.name: aug.render(self.nerf, main, randomized) for aug in self.augmentations})
 
     def training_step(self, batch: TrainingBatch, batch_idx: int) -> torch.Tensor:
@@ -138,7 +139,9 @@ class SimpleNeRF(L.LightningModule):
             losses = self.random_ray_losses(random, batch.random)
             random_loss = self.weighted(losses)
             random_loss.backward()  # frees the random rays' activations before the sparse rays are rendered
-            sparse_losses = self.sparse_ray_losses(self.render(batch.sparse.rays, randomized=True), batch)
+            # The sparse-depth rays' losses read depth only: the fields skip their colour branches there.
+            sparse = self.render(batch.sparse.rays, randomized=True, color=False)
+            sparse_losses = self.sparse_ray_losses(sparse, batch)
             loss = self.weighted(sparse_losses, regularize=True) + random_loss.detach()
         else:  # one pass over the random rays followed by the sparse-depth rays, then split
             random, sparse = self.render(batch.rays, randomized=True).split(len(batch.random))

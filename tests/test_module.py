@@ -176,7 +176,7 @@ def test_backward_per_part_gives_the_one_pass_loss_and_gradient(datamodule, monk
     for per_part in (False, True):
         model = simplenerf_module(backward_per_part=per_part)
         render = model.render
-        monkeypatch.setattr(model, "render", lambda rays, randomized, f=render: f(rays, randomized=False))
+        monkeypatch.setattr(model, "render", lambda rays, randomized, color=True, f=render: f(rays, False, color))
         loss, logged = run_step(model, datamodule, monkeypatch)
         loss.backward()
         grads = torch.cat([p.grad.flatten() for p in model.parameters() if p.grad is not None])

@@ -32,11 +32,12 @@ class FieldOutputs:
     """Raw field outputs at sample points."""
 
     raw_density: torch.Tensor  # [R, S] before noise and ReLU
-    rgb: torch.Tensor  # [R, S, 3] in [0, 1]
+    rgb: torch.Tensor | None  # [R, S, 3] in [0, 1]; may be None when `samples.color` is False
 
 
 class Field(nn.Module):
-    """A radiance field: `field(samples) -> FieldOutputs`. Subclasses implement `forward`."""
+    """A radiance field: `field(samples) -> FieldOutputs`. Subclasses implement `forward`; where `samples.color` is
+    False no loss reads the colour, so a field may skip computing it (return rgb None): an optimisation, not a duty."""
 
     def forward(self, samples: Samples) -> FieldOutputs:
         raise NotImplementedError
@@ -122,6 +123,10 @@ class RadianceField(Field):
         h = x
         for i, layer in enumerate(self.trunk):
             h = torch.relu(layer(torch.cat([h, x], dim=-1) if i == self.skip_layer else h))
+        if not samples.color:  # density only: the colour branch is skipped, the density is the same
+            head = self.density_head if self.view_dependent else self.output
+            raw_density = nn.functional.linear(h, head.weight[:1], head.bias[:1])[..., 0]
+            return FieldOutputs(raw_density=raw_density, rgb=None)
         if not self.view_dependent:
             out = self.output(h)
             return FieldOutputs(raw_density=out[..., 0], rgb=torch.sigmoid(out[..., 1:]))

@@ -171,6 +171,9 @@ class KPlanesField(Field):
         features = self.grid_features(samples.positions.reshape(-1, 3))  # [R S, C scales]
         split = self.features * self.density_scales
         h = self.density_net(features[:, :split])  # [R S, 1 + G]
+        raw_density = trunc_exp(h[:, 0] + self.density_shift).view(rays, num)
+        if not samples.color:  # density only (no loss reads the colour at these samples)
+            return FieldOutputs(raw_density=raw_density, rgb=None)
         color_in = [h[:, 1:]]
         if self.residual_scales_to_color:
             color_in.append(features[:, split:])
@@ -178,8 +181,7 @@ class KPlanesField(Field):
             dirs = samples.encoded_directions(self.view_bands)  # [R, D]
             color_in.append(dirs[:, None, :].expand(rays, num, dirs.shape[-1]).reshape(rays * num, -1).to(h.dtype))
         rgb = torch.sigmoid(self.color_net(torch.cat(color_in, dim=-1)))
-        raw_density = trunc_exp(h[:, 0] + self.density_shift)
-        return FieldOutputs(raw_density=raw_density.view(rays, num), rgb=rgb.view(rays, num, 3))
+        return FieldOutputs(raw_density=raw_density, rgb=rgb.view(rays, num, 3))
 
     def parameter_groups(self) -> dict[str, list[nn.Parameter]]:
         """{"grid": the planes, "decoder": the MLPs}: grids train with a much larger learning rate than MLPs."""

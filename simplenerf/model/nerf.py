@@ -68,21 +68,23 @@ class NeRF(nn.Module):
         self.coarse = coarse if coarse is not None else RadianceField()
         self.fine = fine if fine is not None else RadianceField()
 
-    def make_samples(self, rays: RayBundle, t: torch.Tensor) -> Samples:
-        """Samples at NDC positions t [R, S] along `rays`."""
+    def make_samples(self, rays: RayBundle, t: torch.Tensor, color: bool = True) -> Samples:
+        """Samples at NDC positions t [R, S] along `rays` (`color`: whether any loss reads their colour)."""
         return Samples(
             t=t,
             t_metric=ndc_to_metric_t(t, rays, self.near),
             delta=deltas(t, rays.ndc_directions),
             positions=rays.ndc_origins[:, None, :] + t[..., None] * rays.ndc_directions[:, None, :],
             directions=rays.directions / torch.linalg.vector_norm(rays.directions, dim=-1, keepdim=True),
+            color=color,
         )
 
     def render(self, field: Field, samples: Samples, randomized: bool) -> RenderOutputs:
         """Evaluates `field` at `samples` and volume-renders it (density noise only when `randomized`)."""
         out = self.evaluate(field, samples)
         # Rendering runs in the precision of the rays, whatever the MLP ran in (e.g. under bf16 autocast).
-        raw, rgb = out.raw_density.to(samples.t.dtype), out.rgb.to(samples.t.dtype)
+        raw = out.raw_density.to(samples.t.dtype)
+        rgb = out.rgb.to(samples.t.dtype) if samples.color else None
         sigma = density(raw, self.density_noise_std if randomized else 0.0)
         return composite(compute_weights(sigma, samples.delta), rgb, samples.t_metric)
 
@@ -93,15 +95,18 @@ class NeRF(nn.Module):
         if step >= rays:
             return field(samples)
         parts = [field(samples[start : start + step]) for start in range(0, rays, step)]
-        return FieldOutputs(torch.cat([p.raw_density for p in parts]), torch.cat([p.rgb for p in parts]))
+        rgb = torch.cat([p.rgb for p in parts]) if samples.color else None
+        return FieldOutputs(torch.cat([p.raw_density for p in parts]), rgb)
 
-    def forward(self, rays: RayBundle, randomized: bool) -> NeRFOutputs:
-        """Coarse then fine rendering. `randomized`: jittered samples and density noise (training)."""
+    def forward(self, rays: RayBundle, randomized: bool, color: bool = True) -> NeRFOutputs:
+        """Coarse then fine rendering. `randomized`: jittered samples and density noise (training). `color` False:
+        depth, accumulation and weights only (rgb None; the fields may skip their colour branches), for rays whose
+        losses read depth only; the same depths either way."""
         t_coarse = stratified_samples(len(rays), self.num_coarse, randomized, like=rays.ndc_origins)
-        coarse_samples = self.make_samples(rays, t_coarse)
+        coarse_samples = self.make_samples(rays, t_coarse, color)
         coarse = self.render(self.coarse, coarse_samples, randomized)
         t_fine = hierarchical_samples(t_coarse, coarse.weights, self.num_fine, deterministic=not randomized)
-        fine_samples = self.make_samples(rays, t_fine)
+        fine_samples = self.make_samples(rays, t_fine, color)
         fine = self.render(self.fine, fine_samples, randomized)
         return NeRFOutputs(coarse=coarse, fine=fine, coarse_samples=coarse_samples, fine_samples=fine_samples)
 

@@ -15,14 +15,15 @@ import torch
 class RenderOutputs:
     """What one field renders along a batch of rays."""
 
-    rgb: torch.Tensor  # [R, 3]
+    rgb: torch.Tensor | None  # [R, 3]; None where the field skipped colour (`Samples.color` False)
     depth: torch.Tensor  # [R] metric depth, normalised by accumulation
     accumulation: torch.Tensor  # [R] sum of weights
     weights: torch.Tensor  # [R, S]
 
     def __getitem__(self, index: slice) -> RenderOutputs:
         """The outputs of a subset of the rays."""
-        return RenderOutputs(self.rgb[index], self.depth[index], self.accumulation[index], self.weights[index])
+        rgb = None if self.rgb is None else self.rgb[index]
+        return RenderOutputs(rgb, self.depth[index], self.accumulation[index], self.weights[index])
 
 
 def deltas(t: torch.Tensor, ndc_directions: torch.Tensor) -> torch.Tensor:
@@ -62,17 +63,17 @@ def compute_weights(sigma: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
     return alpha * transmittance
 
 
-def composite(w: torch.Tensor, rgb: torch.Tensor, t_metric: torch.Tensor) -> RenderOutputs:
+def composite(w: torch.Tensor, rgb: torch.Tensor | None, t_metric: torch.Tensor) -> RenderOutputs:
     """Colour, depth and accumulation from weights.
 
     depth = sum(w t_metric) / (sum(w) + 1e-6): the expected termination depth among the rays that terminate.
 
     Args:
-        w: [R, S]. rgb: [R, S, 3]. t_metric: [R, S].
+        w: [R, S]. rgb: [R, S, 3] (None: no colour is rendered). t_metric: [R, S].
     """
     acc = w.sum(-1)
     return RenderOutputs(
-        rgb=(w[..., None] * rgb).sum(-2),
+        rgb=None if rgb is None else (w[..., None] * rgb).sum(-2),
         depth=(w * t_metric).sum(-1) / (acc + 1e-6),
         accumulation=acc,
         weights=w,

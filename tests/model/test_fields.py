@@ -84,3 +84,23 @@ def test_invalid_configurations_are_rejected():
     with pytest.raises(ValueError):
         RadianceField(view_dependent=False, density_bands=3, residual_bands_to_color=True)
 
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{}, {"view_dependent": False}, {"density_bands": 3, "residual_bands_to_color": True}]
+)
+def test_density_only_samples_skip_the_colour_branch(kwargs):
+    """Where no loss reads colour (`Samples.color` False): the same raw density, no rgb, and no gradient reaches
+    the colour branch."""
+    torch.manual_seed(0)
+    _, p_enc, v_enc = encodings()
+    field = RadianceField(num_layers=3, width=16, skip_layer=1, color_width=8, **kwargs)
+    full = field(at(p_enc, v_enc))
+    samples = at(p_enc, v_enc)
+    samples.color = False
+    only = field(samples)
+    assert only.rgb is None and torch.allclose(only.raw_density, full.raw_density, rtol=1e-6, atol=1e-7)
+    only.raw_density.sum().backward()
+    branch = field.output.weight[1:] if not field.view_dependent else field.color[0].weight
+    assert branch.grad is None or not branch.grad.any()
+    assert field.trunk[0].weight.grad.abs().sum() > 0

@@ -227,3 +227,14 @@ def test_grid_dsnerf_configs_are_the_simplenerf_ones_without_the_simplifiers(sim
             config["model"].pop(key, None)
         config.pop("trainer")
     assert a == b
+
+
+def test_density_only_samples_give_the_same_density_without_colour():
+    torch.manual_seed(0)
+    field = KPlanesField(resolutions=[4, 8], features=4, hidden=8)
+    positions = torch.rand(3, 5, 3) * 2 - 1
+    full = field(samples_at(positions))
+    samples = samples_at(positions)
+    samples.color = False
+    only = field(samples)
+    assert only.rgb is None and torch.equal(only.raw_density, full.raw_density)

@@ -13,7 +13,8 @@
 # ../shared/data/realestate10k, 256x256) or the path of a scene folder: an LLFF scene (poses_bounds.npy) or a
 # RealEstate-10K clip (<id>.txt + frames/). STEPS shortens the budget: the learning rate still decays to a tenth by the
 # last step and the warm-up stays 10% of it. Runs: $RUNS/<scene>_seed<S>_<variant> (RUNS default runs/grid).
-# PYTHON (default .venv/bin/python) and EXTRA (more CLI overrides for every fit) can be set.
+# PYTHON (default .venv/bin/python), EXTRA (more CLI overrides for every fit) and, with STEPS, DEPTH_WEIGHT (the
+# weight of L_ap, L_av and L_cfc after the warm-up; default 0.1, the paper's) can be set.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-.venv/bin/python}
@@ -39,7 +40,8 @@ if [ -n "${STEPS:-}" ]; then
   warm=$(( STEPS / 10 ))
   budget=(--trainer.max_steps "$STEPS" --model.lr_scheduler.init_args.decay_steps "$STEPS"
           --trainer.val_check_interval "$STEPS" --checkpoint.every_n_train_steps "$STEPS")
-  sched="{points: [[0, 0.0], [$warm, 0.1]], views: [[0, 0.0], [$warm, 0.1]], cfc: [[0, 0.0], [$warm, 0.1]]}"
+  w=${DEPTH_WEIGHT:-0.1}
+  sched="{points: [[0, 0.0], [$warm, $w]], views: [[0, 0.0], [$warm, $w]], cfc: [[0, 0.0], [$warm, $w]]}"
 fi
 
 table=()

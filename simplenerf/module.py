@@ -62,6 +62,7 @@ class SimpleNeRF(L.LightningModule):
         augmentations: list[Augmentation] | None = None,
         coarse_fine_mask: ReliabilityMask | None = None,
         supervision: Literal["bidirectional", "one_way"] = "one_way",
+        depth_loss_space: Literal["metric", "inverse"] = "metric",
         color_weight: float = 1.0,
         sparse_depth_weight: float = 0.1,
         coarse_fine_weight: float = 0.1,
@@ -82,6 +83,10 @@ class SimpleNeRF(L.LightningModule):
             supervision: `bidirectional`: where the mask is -1 the other depth is trained toward the main one (the
                 paper's equations); `one_way`: only mask +1 rays train the main depth (what the release trains; the
                 default: on the CPU benchmark of the README it was slightly better in colour, within noise in depth).
+            depth_loss_space: what L_ap, L_av and L_cfc compare: `metric` depth (the paper and the release) or
+                `inverse` depth 1 / z, bounded by 1 / near (= 1 - NDC t with near 1). Metric depth grows without
+                bound towards the NDC far plane, where a few rays can dominate these squared losses (on the
+                RealEstate-10K grid runs, README "Grid backbone"). The masks always compare metric depths.
             color_weight: lambda_1, weight of the colour loss.
             sparse_depth_weight: lambda_2, weight of DS-NeRF's sparse-depth loss (used when the data module serves
                 sparse-depth rays, `sparse_rays_per_batch` > 0).
@@ -202,7 +207,10 @@ class SimpleNeRF(L.LightningModule):
         mask = pair.mask(self.train_views, rays, pair.main.depth.detach(), pair.other.depth.detach())
         if mask is not None:
             self.log_dict({f"train/mask_{pair.name}/{k}": v for k, v in mask_fractions(mask).items()}, sync_dist=True)
-        return masked_depth_loss(pair.main.depth, pair.other.depth, mask, self.hparams.supervision)
+        z_main, z_other = pair.main.depth, pair.other.depth
+        if self.hparams.depth_loss_space == "inverse":
+            z_main, z_other = 1.0 / z_main.clamp_min(1e-6), 1.0 / z_other.clamp_min(1e-6)
+        return masked_depth_loss(z_main, z_other, mask, self.hparams.supervision)
 
     def field_regularization(self) -> torch.Tensor | None:
         """The sum of every field's own regulariser (`Field.regularization`), or None when no field has one."""

@@ -185,3 +185,29 @@ def test_backward_per_part_gives_the_one_pass_loss_and_gradient(datamodule, monk
     assert torch.allclose(loss_a, loss_b, rtol=1e-5) and logged_a == pytest.approx(logged_b, rel=1e-5)
     assert {"train/loss_sparse_depth", "train/loss_cfc", "train/loss_points"} <= set(logged_a)
     assert grad_a.shape == grad_b.shape and torch.allclose(grad_a, grad_b, rtol=1e-4, atol=1e-7)
+
+
+@pytest.mark.parametrize("space", ["metric", "inverse"])
+def test_masked_depth_losses_compare_metric_or_inverse_depth(space, monkeypatch):
+    """`depth_loss_space`: the masked losses compare z or 1 / z; the mask itself always sees metric depth."""
+    from simplenerf.model.rendering import RenderOutputs
+    from simplenerf.module import DepthPair
+
+    model = module(supervision="bidirectional", depth_loss_space=space)
+    model.train_views = object()  # the stub mask below does not look at the views
+    monkeypatch.setattr(model, "log_dict", lambda *a, **kw: None)
+    seen = {}
+
+    def mask(views, rays, z_main, z_other):
+        seen["z"] = (z_main, z_other)
+        return torch.tensor([1.0, -1.0, 0.0, 1.0])
+
+    def render(depth):
+        return RenderOutputs(None, torch.tensor(depth), torch.ones(4), torch.ones(4, 1))
+
+    pair = DepthPair("points", mask, render([2.0, 4.0, 8.0, 1.0]), render([4.0, 2.0, 100.0, 1.0]))
+    loss = model.masked_depth_loss(pair, rays=None)
+    assert seen["z"][0].tolist() == [2.0, 4.0, 8.0, 1.0]
+    # rays with mask +1 and -1 count, the mask-0 ray (metric error 92) does not; the mean is over all 4 rays
+    expected = (4.0 + 4.0 + 0.0 + 0.0) / 4 if space == "metric" else ((0.5 - 0.25) ** 2 + (0.25 - 0.5) ** 2) / 4
+    assert loss.item() == pytest.approx(expected)

@@ -153,7 +153,8 @@ def test_test_writes_metrics_and_renders(trained):
         assert isinstance(summary[key], float)
     assert 0 < summary["psnr"] < 100 and -1 <= summary["ssim"] <= 1 and summary["depth_mae"] >= 0
     if lpips_file.exists():
-        assert 0 <= summary["lpips"] <= 1
+        # LPIPS is a weighted feature distance: >= 0 but not bounded by 1 (a barely trained model gave 1.013)
+        assert 0 <= summary["lpips"] < 10
     rows = (out / "metrics.csv").read_text().splitlines()
     assert rows[0].startswith("frame,index,psnr,ssim,lpips,depth_mae,depth_srocc") and len(rows) == 4
     assert {p.name for p in (out / "rgb").iterdir()} == {"000.png", "008.png", "016.png"}

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import statistics
 from pathlib import Path
 
 from simplenerf.evaluation.evaluator import ALL_METRICS
@@ -30,12 +31,16 @@ def load_summaries(runs: dict[str, Path]) -> dict[str, dict]:
     return summaries
 
 
+def _header(first: list[str], every: list[dict]) -> tuple[list[str], list[str]]:
+    """The metrics any of these summaries has, and the table's two header lines (arrows say which way is better)."""
+    metrics = [m for m in (*ALL_METRICS, *HELDOUT) if any(s.get(m) is not None for s in every)]
+    names = [f"{m} {'↓' if m in LOWER_IS_BETTER else '↑'}" for m in metrics]
+    return metrics, ["| " + " | ".join(first + names) + " |", "|---|" + "---:|" * (len(first) - 1 + len(metrics))]
+
+
 def markdown_table(summaries: dict[str, dict]) -> str:
-    """One row per run, one column per metric (arrows say which way is better)."""
-    metrics = [m for m in (*ALL_METRICS, *HELDOUT) if any(s.get(m) is not None for s in summaries.values())]
-    arrow = {m: "↓" if m in LOWER_IS_BETTER else "↑" for m in metrics}
-    lines = ["| run | " + " | ".join(f"{m} {arrow[m]}" for m in metrics) + " |",
-             "|---|" + "---:|" * len(metrics)]
+    """One row per run, one column per metric."""
+    metrics, lines = _header(["run"], list(summaries.values()))
     for name, summary in summaries.items():
         cells = [f"{summary[m]:.4f}" if summary.get(m) is not None else "-" for m in metrics]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
@@ -43,22 +48,14 @@ def markdown_table(summaries: dict[str, dict]) -> str:
 
 
 def seed_table(groups: dict[str, list[dict]]) -> str:
-    """One row per model over several runs (e.g. seeds): each metric as mean ± sample standard deviation (n - 1 in
-    the denominator; 0 for a single run), and the number of runs."""
-    every = [s for summaries in groups.values() for s in summaries]
-    metrics = [m for m in (*ALL_METRICS, *HELDOUT) if any(s.get(m) is not None for s in every)]
-    arrow = {m: "↓" if m in LOWER_IS_BETTER else "↑" for m in metrics}
-    lines = ["| model | runs | " + " | ".join(f"{m} {arrow[m]}" for m in metrics) + " |",
-             "|---|---:|" + "---:|" * len(metrics)]
+    """One row per model over several runs (e.g. seeds): each metric as mean ± sample standard deviation
+    (`statistics.stdev`; 0 for a single run), and the number of runs."""
+    metrics, lines = _header(["model", "runs"], [s for summaries in groups.values() for s in summaries])
     for name, summaries in groups.items():
         cells = []
         for m in metrics:
             values = [s[m] for s in summaries if s.get(m) is not None]
-            if not values:
-                cells.append("-")
-                continue
-            mean = sum(values) / len(values)
-            var = sum((v - mean) ** 2 for v in values) / (len(values) - 1) if len(values) > 1 else 0.0
-            cells.append(f"{mean:.4f} ± {var**0.5:.4f}")
+            std = statistics.stdev(values) if len(values) > 1 else 0.0
+            cells.append(f"{statistics.fmean(values):.4f} ± {std:.4f}" if values else "-")
         lines.append(f"| {name} | {len(summaries)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)

@@ -124,8 +124,9 @@ class RadianceField(Field):
         for i, layer in enumerate(self.trunk):
             h = torch.relu(layer(torch.cat([h, x], dim=-1) if i == self.skip_layer else h))
         if not samples.color:  # density only: the colour branch is skipped, the density is the same
-            head = self.density_head if self.view_dependent else self.output
-            raw_density = nn.functional.linear(h, head.weight[:1], head.bias[:1])[..., 0]
+            if self.view_dependent:
+                return FieldOutputs(raw_density=self.density_head(h)[..., 0], rgb=None)
+            raw_density = nn.functional.linear(h, self.output.weight[:1], self.output.bias[:1])[..., 0]
             return FieldOutputs(raw_density=raw_density, rgb=None)
         if not self.view_dependent:
             out = self.output(h)

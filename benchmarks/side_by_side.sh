@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # The authors' release and ours, alternating in one sitting, on LLFF fern images_4 with 2 views; then one table.
 #
-#   benchmarks/side_by_side.sh [VARIANT [PRECISION [REPS]]]       e.g.  benchmarks/side_by_side.sh B 32-true 3
+#   benchmarks/side_by_side.sh [VARIANT [PRECISIONS [REPS]]]   e.g.  benchmarks/side_by_side.sh B 32-true,bf16-mixed 3
 #
 # VARIANT (as ../shared/tools/official_timing/README.md):
 #   A  the paper's config: 2048 + 2048 rays          release: driver.py --variant A;  ours: configs/llff.yaml
 #   B  256 + 256 rays (default)                       release: driver.py --variant B;  ours: configs/llff.yaml
 #   C  256 + 256 rays, no augmentations (DS-NeRF-like) release: driver.py --variant C;  ours: configs/dsnerf.yaml
-# PRECISION is ours (32-true, bf16-mixed, ...); the release always runs fp32. Every rep runs the release then ours, or
-# ours then the release on even reps, so drift of the machine falls on both. Each run: WARMUP untimed + STEPS timed
+# PRECISIONS are ours, comma-separated (32-true, bf16-mixed, ...); the release always runs fp32. Every rep runs the
+# release then ours in each precision, or the reverse order on even reps, so drift of the machine falls on all. Each run: WARMUP untimed + STEPS timed
 # iterations (the release's --discard WARMUP). Our loss weights are the configured ones (no warm-up schedule), so
 # L_ap, L_av and L_cfc are computed as the release computes them (at weight 0 before its step 10k).
 #
@@ -22,13 +22,13 @@
 # of benchmarks/train_step.py; log beside it), OUT/table.md (benchmarks/summarize.py).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-VARIANT=${1:-B} PRECISION=${2:-32-true} REPS=${3:-3}
+VARIANT=${1:-B} PRECISIONS=${2:-32-true} REPS=${3:-3}
 OFFICIAL=${OFFICIAL:-/work/official}
 HARNESS=${HARNESS:-../shared/tools/official_timing}
 PYTHON=${PYTHON:-.venv/bin/python}
 SCENE=${SCENE:-../shared/data/nerf_llff_data/fern}
 STEPS=${STEPS:-4} WARMUP=${WARMUP:-2} THREADS=${THREADS:-2}
-OUT=${OUT:-runs/side_by_side/${VARIANT}_${PRECISION}_$(date -u +%Y%m%dT%H%M%SZ)}
+OUT=${OUT:-runs/side_by_side/${VARIANT}_${PRECISIONS//,/_}_$(date -u +%Y%m%dT%H%M%SZ)}
 
 case $VARIANT in
   A) config=configs/llff.yaml rays=2048 ;;
@@ -63,15 +63,20 @@ release() {
     > "$OUT/release_${VARIANT}_$1.log" 2>&1
   echo "release rep $1: $(grep -o '"s_per_iter_median": [0-9.]*' "$OUT/release_${VARIANT}_$1.log")"
 }
-ours() {
-  "$PYTHON" benchmarks/train_step.py --label "$VARIANT" --precision "$PRECISION" --steps "$STEPS" --warmup "$WARMUP" \
-    "${ours_args[@]}" > "$OUT/ours_${VARIANT}_${PRECISION}_$1.json" 2> "$OUT/ours_${VARIANT}_${PRECISION}_$1.log"
-  echo "ours rep $1: $(grep -o '"s_per_it": [0-9.]*' "$OUT/ours_${VARIANT}_${PRECISION}_$1.json")"
+ours() {  # rep precision
+  "$PYTHON" benchmarks/train_step.py --label "$VARIANT" --precision "$2" --steps "$STEPS" --warmup "$WARMUP" \
+    "${ours_args[@]}" > "$OUT/ours_${VARIANT}_$2_$1.json" 2> "$OUT/ours_${VARIANT}_$2_$1.log"
+  echo "ours $2 rep $1: $(grep -o '"s_per_it": [0-9.]*' "$OUT/ours_${VARIANT}_$2_$1.json")"
 }
 
-echo "side by side: variant $VARIANT ($rays + $rays rays), ours in $PRECISION, $REPS reps of $WARMUP + $STEPS" \
-     "iterations, $THREADS threads; results in $OUT"
+IFS=, read -r -a precisions <<< "$PRECISIONS"
+echo "side by side: variant $VARIANT ($rays + $rays rays), ours in ${precisions[*]}, $REPS reps of $WARMUP +" \
+     "$STEPS iterations, $THREADS threads; results in $OUT"
 for rep in $(seq 1 "$REPS"); do
-  if [ $((rep % 2)) -eq 1 ]; then release "$rep"; ours "$rep"; else ours "$rep"; release "$rep"; fi
+  if [ $((rep % 2)) -eq 1 ]; then
+    release "$rep"; for p in "${precisions[@]}"; do ours "$rep" "$p"; done
+  else
+    for ((i = ${#precisions[@]} - 1; i >= 0; i--)); do ours "$rep" "${precisions[i]}"; done; release "$rep"
+  fi
 done
 "$PYTHON" benchmarks/summarize.py "$OUT"/release_*.json "$OUT"/ours_*.json | tee "$OUT/table.md"

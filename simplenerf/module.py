@@ -15,7 +15,7 @@ import torch
 from lightning.pytorch.cli import LRSchedulerCallable, OptimizerCallable
 from torch import nn
 
-from simplenerf.data.batches import Frame, RayBatch, TrainingBatch
+from simplenerf.data.batches import Frame, RayBatch, SparseDepthBatch, TrainingBatch
 from simplenerf.errors import SimpleNeRFError
 from simplenerf.evaluation.metrics import psnr
 from simplenerf.geometry.rays import pixel_grid
@@ -41,6 +41,17 @@ class Renders:
         """The renders of the first n rays (a training batch's random rays) and of the rest (its sparse rays)."""
         (first, rest), augmented = self.main.split(n), self.augmented.items()
         return Renders(first, {k: r[:n] for k, r in augmented}), Renders(rest, {k: r[n:] for k, r in augmented})
+
+
+def ray_slices(n: int, size: int | None) -> list[slice]:
+    """Consecutive slices of at most `size` (None: all n) of n rays."""
+    size = size or n
+    return [slice(start, min(start + size, n)) for start in range(0, n, size)]
+
+
+def add_terms(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Two dicts of loss terms summed by name (L_cfc, for one, has a part on each kind of ray)."""
+    return {**a, **{name: a[name] + value if name in a else value for name, value in b.items()}}
 
 
 @dataclass
@@ -72,6 +83,7 @@ class SimpleNeRF(L.LightningModule):
         group_lr: dict[str, float] | None = None,
         chunk: int = 8192,
         backward_per_part: bool = False,
+        rays_per_backward: int | None = None,
     ) -> None:
         """
         Args:
@@ -103,6 +115,9 @@ class SimpleNeRF(L.LightningModule):
             backward_per_part: render and backpropagate the random rays, then the sparse-depth rays (as the release's
                 2048-ray sub-batches): the same loss and gradient with about half the activation memory (the random
                 draws of jitter and noise differ from one pass). Not with DDP or fp16 loss scaling.
+            rays_per_backward: with `backward_per_part`, at most this many rays per render-and-backward pass (the
+                random rays and the sparse-depth rays each split into parts): the same loss and gradient, activation
+                memory in proportion to the part. None: one part each.
         """
         super().__init__()
         self.save_hyperparameters(ignore=["nerf", "augmentations", "coarse_fine_mask", "optimizer", "lr_scheduler"])
@@ -140,44 +155,75 @@ class SimpleNeRF(L.LightningModule):
         # L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc (paper Sec. 4.4): the colour and masked depth terms are
         # on the random rays, the sparse-depth terms on the sparse-depth rays.
         if self.hparams.backward_per_part and batch.sparse is not None:
-            random = self.render(batch.random.rays, randomized=True)
-            losses = self.random_ray_losses(random, batch.random)
-            random_loss = self.weighted(losses)
-            random_loss.backward()  # frees the random rays' activations before the sparse rays are rendered
-            # The sparse-depth rays' losses read depth only: the fields skip their colour branches there.
-            sparse = self.render(batch.sparse.rays, randomized=True, color=False)
-            sparse_losses = self.sparse_ray_losses(sparse, batch)
-            loss = self.weighted(sparse_losses, regularize=True) + random_loss.detach()
+            loss, losses, masks, fine_rgb = self.backward_in_parts(batch)
         else:  # one pass over the random rays followed by the sparse-depth rays, then split
             random, sparse = self.render(batch.rays, randomized=True).split(len(batch.random))
-            losses, sparse_losses = self.random_ray_losses(random, batch.random), self.sparse_ray_losses(sparse, batch)
+            losses, masks = self.random_ray_losses(random, batch.random)
+            sparse_losses = self.sparse_ray_losses(sparse, batch.sparse)
             loss = self.weighted(losses) + self.weighted(sparse_losses, regularize=True)
-        for name, value in sparse_losses.items():  # L_cfc has a part on each kind of ray
-            losses[name] = losses[name] + value if name in losses else value
+            losses, fine_rgb = add_terms(losses, sparse_losses), random.main.fine.rgb
 
         # sync_dist: under DDP every rank trains on its own rays; the logged values are their mean (no-op otherwise).
         self.log_dict({f"train/loss_{name}": value for name, value in losses.items()}, sync_dist=True)
-        train_psnr = psnr_of_mse(random.main.fine.rgb, batch.random.rgb)
+        self.log_dict({f"train/mask_{name}": value for name, value in masks.items()}, sync_dist=True)
+        train_psnr = psnr_of_mse(fine_rgb, batch.random.rgb)
         self.log_dict({"train/loss": loss, "train/psnr_fine": train_psnr}, sync_dist=True)
         self.log("loss", loss, prog_bar=True, logger=False)
         return loss
 
-    def random_ray_losses(self, renders: Renders, rays: RayBatch) -> dict[str, torch.Tensor]:
+    def backward_in_parts(self, batch: TrainingBatch):
+        """Render and backpropagate the random rays, then the sparse-depth rays, in parts of at most
+        `rays_per_backward` rays (the sparse rays depth only: no loss reads their colours, so the fields skip their
+        colour branches). Every term is a mean over rays, so the parts' terms, each weighted by its share of the
+        rays, sum to the one-pass terms, and their gradients to its gradient.
+
+        Returns:
+            (the total loss, whose graph is the last part's: Lightning backpropagates it; the earlier parts are
+            already backpropagated), the terms by name, the mask fractions by name, [R, 3] main fine colours of the
+            random rays (detached).
+        """
+        parts = [(batch.random[s], True) for s in ray_slices(len(batch.random), self.hparams.rays_per_backward)]
+        parts += [(batch.sparse[s], False) for s in ray_slices(len(batch.sparse), self.hparams.rays_per_backward)]
+        total, terms, masks, fine_rgb = torch.zeros((), device=self.device), {}, {}, []
+        for i, (rays, is_random) in enumerate(parts):
+            share = len(rays) / len(batch.random if is_random else batch.sparse)
+            renders = self.render(rays.rays, randomized=True, color=is_random)
+            if is_random:
+                losses, part_masks = self.random_ray_losses(renders, rays)
+                masks = add_terms(masks, {k: share * v for k, v in part_masks.items()})
+                fine_rgb.append(renders.main.fine.rgb.detach())
+            else:
+                losses = self.sparse_ray_losses(renders, rays)
+            losses = {name: share * value for name, value in losses.items()}
+            last = i == len(parts) - 1
+            loss = self.weighted(losses, regularize=last)  # the fields' regularisers once, with the last part
+            if not last:
+                loss.backward()  # frees this part's activations before the next part is rendered
+                loss = loss.detach()
+            total, terms = total + loss, add_terms(terms, {k: v.detach() for k, v in losses.items()})
+        return total, terms, masks, torch.cat(fine_rgb)
+
+    def random_ray_losses(
+        self, renders: Renders, rays: RayBatch
+    ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
         """Lcolor on main coarse, main fine and each augmentation; L_ap, L_av, L_cfc with their reliability masks
-        (free, not even the mask, while a term's weight is 0: the warm-up)."""
+        (free, not even the mask, while a term's weight is 0: the warm-up). Also returns the masks' fractions of
+        +1 / -1 / 0 rays, by "<loss name>/<plus|minus|zero>"."""
         augmented = list(renders.augmented.values())
         losses = {"color": color_loss([renders.main.coarse, renders.main.fine, *augmented], rays.rgb)}
+        masks = {}
         for pair in self.depth_pairs(renders):
             if self.loss_weights[pair.name] > 0:
-                losses[pair.name] = self.masked_depth_loss(pair, rays)
-        return losses
+                losses[pair.name], fractions = self.masked_depth_loss(pair, rays)
+                masks.update({f"{pair.name}/{k}": v for k, v in fractions.items()})
+        return losses, masks
 
-    def sparse_ray_losses(self, renders: Renders, batch: TrainingBatch) -> dict[str, torch.Tensor]:
+    def sparse_ray_losses(self, renders: Renders, rays: SparseDepthBatch | None) -> dict[str, torch.Tensor]:
         """Lsd on main fine and each augmentation (not main coarse), and the release's unmasked part of L_cfc."""
-        if batch.sparse is None:
+        if rays is None:
             return {}
         fine_and_augmented = [renders.main.fine, *renders.augmented.values()]
-        losses = {"sparse_depth": sparse_depth_loss(fine_and_augmented, batch.sparse.depth, batch.sparse.weight)}
+        losses = {"sparse_depth": sparse_depth_loss(fine_and_augmented, rays.depth, rays.weight)}
         cfc_on = self.coarse_fine_mask is not None and self.loss_weights["cfc"] > 0
         if cfc_on and self.hparams.coarse_fine_on_sparse_rays:
             losses["cfc"] = coarse_fine_sparse_loss(renders.main.coarse, renders.main.fine)
@@ -201,16 +247,16 @@ class SimpleNeRF(L.LightningModule):
             pairs.append(DepthPair("cfc", self.coarse_fine_mask, renders.main.coarse, renders.main.fine))
         return pairs
 
-    def masked_depth_loss(self, pair: DepthPair, rays: RayBatch) -> torch.Tensor:
-        """The masked depth loss of one pair on train rays `rays`; logs the fractions of its mask values."""
+    def masked_depth_loss(self, pair: DepthPair, rays: RayBatch) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The masked depth loss of one pair on train rays `rays`, and the fractions of its mask values (none when
+        the mask trusts every ray)."""
         assert self.train_views is not None, "on_fit_start did not run"
         mask = pair.mask(self.train_views, rays, pair.main.depth.detach(), pair.other.depth.detach())
-        if mask is not None:
-            self.log_dict({f"train/mask_{pair.name}/{k}": v for k, v in mask_fractions(mask).items()}, sync_dist=True)
         z_main, z_other = pair.main.depth, pair.other.depth
         if self.hparams.depth_loss_space == "inverse":
             z_main, z_other = 1.0 / z_main.clamp_min(1e-6), 1.0 / z_other.clamp_min(1e-6)
-        return masked_depth_loss(z_main, z_other, mask, self.hparams.supervision)
+        fractions = {} if mask is None else mask_fractions(mask)
+        return masked_depth_loss(z_main, z_other, mask, self.hparams.supervision), fractions
 
     def field_regularization(self) -> torch.Tensor | None:
         """The sum of every field's own regulariser (`Field.regularization`), or None when no field has one."""

@@ -169,22 +169,32 @@ def test_reliability_maps_of_a_train_view(datamodule, monkeypatch):
     assert picture.shape == (1, 3, 3) and picture[0, :, 0].tolist() == [0, 128, 255]
 
 
-def test_backward_per_part_gives_the_one_pass_loss_and_gradient(datamodule, monkeypatch):
-    """Random rays then sparse-depth rays in two backward passes: the same total loss and gradient as one pass
-    (rendering made deterministic here, since the two ways draw jitter and noise in a different order)."""
+def test_backward_in_parts_gives_the_one_pass_loss_gradient_and_logs(datamodule, monkeypatch):
+    """Random rays then sparse-depth rays in separate backward passes, whole or in parts of at most
+    `rays_per_backward` rays (uneven here): the same total loss, gradient and logged terms and mask fractions as one
+    pass (rendering made deterministic here, since the ways draw jitter and noise in a different order)."""
     results = []
-    for per_part in (False, True):
-        model = simplenerf_module(backward_per_part=per_part)
+    for per_part, rays_per_backward in ((False, None), (True, None), (True, 23)):
+        model = simplenerf_module(backward_per_part=per_part, rays_per_backward=rays_per_backward)
         render = model.render
         monkeypatch.setattr(model, "render", lambda rays, randomized, color=True, f=render: f(rays, False, color))
         loss, logged = run_step(model, datamodule, monkeypatch)
         loss.backward()
         grads = torch.cat([p.grad.flatten() for p in model.parameters() if p.grad is not None])
-        results.append((loss.detach(), grads, {k: float(v) for k, v in logged.items() if "loss" in k}))
-    (loss_a, grad_a, logged_a), (loss_b, grad_b, logged_b) = results
-    assert torch.allclose(loss_a, loss_b, rtol=1e-5) and logged_a == pytest.approx(logged_b, rel=1e-5)
-    assert {"train/loss_sparse_depth", "train/loss_cfc", "train/loss_points"} <= set(logged_a)
-    assert grad_a.shape == grad_b.shape and torch.allclose(grad_a, grad_b, rtol=1e-4, atol=1e-7)
+        results.append((loss.detach(), grads, {k: float(v.detach()) for k, v in logged.items()}))
+    loss_a, grad_a, logged_a = results[0]
+    assert {"train/loss_sparse_depth", "train/loss_cfc", "train/loss_points", "train/mask_cfc/plus"} <= set(logged_a)
+    assert sum(logged_a[f"train/mask_views/{k}"] for k in ("plus", "minus", "zero")) == pytest.approx(1.0)
+    for loss_b, grad_b, logged_b in results[1:]:
+        assert torch.allclose(loss_a, loss_b, rtol=1e-5) and logged_a == pytest.approx(logged_b, rel=1e-5)
+        assert grad_a.shape == grad_b.shape and torch.allclose(grad_a, grad_b, rtol=1e-4, atol=1e-7)
+
+
+def test_ray_slices_cover_the_rays_in_parts_of_at_most_size():
+    from simplenerf.module import ray_slices
+
+    assert ray_slices(5, 2) == [slice(0, 2), slice(2, 4), slice(4, 5)]
+    assert ray_slices(4, None) == [slice(0, 4)] and ray_slices(4, 8) == [slice(0, 4)]
 
 
 @pytest.mark.parametrize("space", ["metric", "inverse"])
@@ -195,7 +205,6 @@ def test_masked_depth_losses_compare_metric_or_inverse_depth(space, monkeypatch)
 
     model = module(supervision="bidirectional", depth_loss_space=space)
     model.train_views = object()  # the stub mask below does not look at the views
-    monkeypatch.setattr(model, "log_dict", lambda *a, **kw: None)
     seen = {}
 
     def mask(views, rays, z_main, z_other):
@@ -206,7 +215,8 @@ def test_masked_depth_losses_compare_metric_or_inverse_depth(space, monkeypatch)
         return RenderOutputs(None, torch.tensor(depth), torch.ones(4), torch.ones(4, 1))
 
     pair = DepthPair("points", mask, render([2.0, 4.0, 8.0, 1.0]), render([4.0, 2.0, 100.0, 1.0]))
-    loss = model.masked_depth_loss(pair, rays=None)
+    loss, fractions = model.masked_depth_loss(pair, rays=None)
+    assert {k: v.item() for k, v in fractions.items()} == {"plus": 0.5, "minus": 0.25, "zero": 0.25}
     assert seen["z"][0].tolist() == [2.0, 4.0, 8.0, 1.0]
     # rays with mask +1 and -1 count, the mask-0 ray (metric error 92) does not; the mean is over all 4 rays
     expected = (4.0 + 4.0 + 0.0 + 0.0) / 4 if space == "metric" else ((0.5 - 0.25) ** 2 + (0.25 - 0.5) ** 2) / 4

@@ -10,7 +10,8 @@ All are dataclasses, which Lightning moves between devices as they are.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from typing import Self
 
 import torch
 
@@ -28,6 +29,10 @@ class RayBatch:
 
     def __len__(self) -> int:
         return len(self.rays)
+
+    def __getitem__(self, index: slice) -> Self:
+        """The rays at `index` (a sub-batch), with every per-ray field."""
+        return type(self)(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
 
 
 @dataclass

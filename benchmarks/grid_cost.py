@@ -153,8 +153,10 @@ def candidates() -> list[tuple[str, nn.Module, Callable]]:
         ("K-Planes demo coarse [32,64] C8 h32", KPlanesField(resolutions=[32, 64], features=8, hidden=32)),
         ("K-Planes points aug [32] C8 h32", KPlanesField(resolutions=[32], features=8, hidden=32)),
         ("K-Planes LLFF coarse [32,64,128] C8 h32", KPlanesField(resolutions=[32, 64, 128], features=8, hidden=32)),
-        ("K-Planes LLFF fine [64..512] C16", KPlanesField(resolutions=[64, 128, 256, 512],
-                                                          depth_resolutions=[64, 128, 128, 128], features=16)),
+        ("K-Planes LLFF fine [64,128,256] C16", KPlanesField(resolutions=[64, 128, 256],
+                                                             depth_resolutions=[64, 128, 128], features=16)),
+        ("K-Planes earlier LLFF fine [64..512] C16", KPlanesField(resolutions=[64, 128, 256, 512],
+                                                                  depth_resolutions=[64, 128, 128, 128], features=16)),
     ]
     encoders = [
         ("K-Planes [32,64,128] C16 (same decoder)", KPlanesEncoder([32, 64, 128], 16)),

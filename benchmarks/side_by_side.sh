@@ -8,8 +8,8 @@
 #   B  256 + 256 rays (default)                       release: driver.py --variant B;  ours: configs/llff.yaml
 #   C  256 + 256 rays, no augmentations (DS-NeRF-like) release: driver.py --variant C;  ours: configs/dsnerf.yaml
 # PRECISIONS are ours, comma-separated (32-true, bf16-mixed, ...); the release always runs fp32. Every rep runs the
-# release then ours in each precision, or the reverse order on even reps, so drift of the machine falls on all. Each run: WARMUP untimed + STEPS timed
-# iterations (the release's --discard WARMUP). Our loss weights are the configured ones (no warm-up schedule), so
+# release then ours in each precision, or the reverse order on even reps, so drift of the machine falls on all.
+# Each run: WARMUP untimed + STEPS timed iterations (the release's --discard WARMUP). Our loss weights are the configured ones (no warm-up schedule), so
 # L_ap, L_av and L_cfc are computed as the release computes them (at weight 0 before its step 10k).
 #
 # Environment (defaults in brackets):

@@ -125,9 +125,10 @@ class RadianceField(Field):
             h = torch.relu(layer(torch.cat([h, x], dim=-1) if i == self.skip_layer else h))
         if not samples.color:  # density only: the colour branch is skipped, the density is the same
             if self.view_dependent:
-                return FieldOutputs(raw_density=self.density_head(h)[..., 0], rgb=None)
-            raw_density = nn.functional.linear(h, self.output.weight[:1], self.output.bias[:1])[..., 0]
-            return FieldOutputs(raw_density=raw_density, rgb=None)
+                raw = self.density_head(h)
+            else:  # the density is the first output of the joint head
+                raw = nn.functional.linear(h, self.output.weight[:1], self.output.bias[:1])
+            return FieldOutputs(raw_density=raw[..., 0], rgb=None)
         if not self.view_dependent:
             out = self.output(h)
             return FieldOutputs(raw_density=out[..., 0], rgb=torch.sigmoid(out[..., 1:]))

@@ -22,6 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import yaml
 from jsonargparse import lazy_instance
 from lightning.pytorch import LightningDataModule
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
@@ -188,13 +189,55 @@ def trainer_defaults() -> dict:
     }
 
 
+# The arguments of a subcommand itself, not of the model, data or trainer: a fit saves them in <run>/config.yaml.
+SUBCOMMAND_KEYS = ("ckpt_path", "weights_only", "overwrite")
+
+
+def without_subcommand_keys(args: list[str], drop: tuple[str, ...]) -> list[str]:
+    """`args` with each `--config FILE` whose top level sets one of `drop` (a run's saved config.yaml) given as its
+    YAML without those keys, so that a fit's record works as the --config of test, validate or a tool."""
+    out: list[str] = []
+    i = 0
+    while i < len(args):
+        if args[i] == "--config" and i + 1 < len(args):
+            out += ["--config", _config_without(args[i + 1], drop)]
+            i += 2
+            continue
+        if args[i].startswith("--config="):
+            out.append("--config=" + _config_without(args[i].split("=", 1)[1], drop))
+        else:
+            out.append(args[i])
+        i += 1
+    return out
+
+
+def _config_without(path: str, drop: tuple[str, ...]) -> str:
+    file = Path(path)
+    if not file.is_file():
+        return path  # a YAML string, or a missing file the parser reports
+    try:
+        config = yaml.safe_load(file.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError):
+        return path
+    if not isinstance(config, dict) or not any(key in config for key in drop):
+        return path
+    return yaml.safe_dump({k: v for k, v in config.items() if k not in drop}, sort_keys=False)
+
+
 def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[LightningCLI] = SimpleNeRFCLI):
     """The CLI on `args` (None: sys.argv). With run=False it only builds model, data module and trainer (tools).
 
     Every entry point comes through here, so this is also where SIMPLENERF_MALLOC=reuse takes effect (keep freed
     host memory for reuse: fewer page faults, more memory; see `simplenerf.memory`).
+    A fit's saved `<run>/config.yaml` can be passed back as --config: the fit's own arguments in it (`overwrite`;
+    for a tool also `ckpt_path` and `weights_only`) are dropped where they do not apply.
     """
     reuse_freed_memory()
+    args = list(sys.argv[1:] if args is None else args)
+    if not run:
+        args = without_subcommand_keys(args, SUBCOMMAND_KEYS)
+    elif args[:1] != ["fit"]:
+        args = without_subcommand_keys(args, ("overwrite",))
     return cli_class(
         SimpleNeRF,
         LightningDataModule,

@@ -117,7 +117,7 @@ class SimpleNeRF(L.LightningModule):
                 draws of jitter and noise differ from one pass). Not with DDP or fp16 loss scaling.
             rays_per_backward: with `backward_per_part`, at most this many rays per render-and-backward pass (the
                 random rays and the sparse-depth rays each split into parts): the same loss and gradient, activation
-                memory in proportion to the part. None: one part each.
+                memory in proportion to the part. None: one part each. Set without `backward_per_part`: an error.
         """
         super().__init__()
         self.save_hyperparameters(ignore=["nerf", "augmentations", "coarse_fine_mask", "optimizer", "lr_scheduler"])
@@ -125,6 +125,9 @@ class SimpleNeRF(L.LightningModule):
         self.augmentations = nn.ModuleList(augmentations or [])
         self.coarse_fine_mask = coarse_fine_mask
         self.optimizer, self.lr_scheduler, self.group_lr = optimizer, lr_scheduler, dict(group_lr or {})
+        if rays_per_backward is not None and (not backward_per_part or rays_per_backward < 1):
+            raise SimpleNeRFError(f"model.rays_per_backward {rays_per_backward} needs model.backward_per_part true and "
+                                  "a positive number of rays (it splits the per-part backward passes)")
         names = [aug.name for aug in self.augmentations]
         if len(set(names)) != len(names) or set(RESERVED_LOSS_NAMES) & set(names):
             raise ValueError(f"augmentation names must be unique and not one of {RESERVED_LOSS_NAMES}, got {names}")
@@ -141,7 +144,8 @@ class SimpleNeRF(L.LightningModule):
     def on_fit_start(self) -> None:
         if self.hparams.backward_per_part and getattr(self.trainer, "world_size", 1) > 1:
             raise SimpleNeRFError("backward_per_part runs two backward passes per step, which DDP's gradient "
-                                  "synchronisation does not allow: set --model.backward_per_part false with DDP")
+                                  "synchronisation does not allow: set --model.backward_per_part false "
+                                  "--model.rays_per_backward null with DDP")
         if self.needs_masks:
             self.train_views = self.trainer.datamodule.train_views.to(self.device)
 

@@ -13,6 +13,7 @@ import pytest
 import torch
 import yaml
 
+from simplenerf.cli import load_for_tool
 from tests.conftest import REPO, shared_dir
 
 SMALL = [
@@ -183,6 +184,25 @@ def test_test_keeps_earlier_results_and_the_run_config(trained):
     summary = json.loads((run_dir / "test" / "summary.json").read_text())
     assert summary["config"] == str(run_dir / "test" / "config.yaml")
     assert summary["checkpoint"] == str(run_dir / "checkpoints" / "last.ckpt")
+
+
+def test_a_runs_saved_config_is_a_config_for_test_and_the_tools(trained, tmp_path):
+    """<run>/config.yaml holds the fit's own arguments too (overwrite, ckpt_path: last, weights_only); test and
+    load_for_tool (what tools/ start from) take the file as it is."""
+    run_dir = trained / "run"
+    saved = yaml.safe_load((run_dir / "config.yaml").read_text())
+    assert {"overwrite", "ckpt_path", "weights_only"} <= saved.keys() and saved["ckpt_path"] == "last"
+    out = tmp_path / "elsewhere"
+    run("test", "--config", str(run_dir / "config.yaml"), "--ckpt_path", str(run_dir / "checkpoints" / "last.ckpt"),
+        "--evaluation.lpips", "false", "--trainer.default_root_dir", str(out),
+        "--trainer.logger.init_args.save_dir", str(out))
+    assert json.loads((out / "test" / "summary.json").read_text())["frames"] == 3
+    cli = load_for_tool([str(run_dir / "config.yaml")], [], ckpt=str(run_dir / "checkpoints" / "last.ckpt"))
+    weights = torch.load(run_dir / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)["state_dict"]
+    assert not cli.model.training and all(torch.equal(v, weights[k]) for k, v in cli.model.state_dict().items())
+    assert cli.trainer.default_root_dir == str(run_dir)
+    # The file itself is unchanged; only what is parsed drops the fit's arguments.
+    assert yaml.safe_load((run_dir / "config.yaml").read_text()) == saved
 
 
 def test_missing_lpips_weights_stop_test_before_writing(trained, tmp_path):

@@ -4,6 +4,7 @@ import pytest
 import torch
 
 from simplenerf.data.batches import TrainingBatch
+from simplenerf.errors import SimpleNeRFError
 from simplenerf.data.synthetic import SyntheticDataModule
 from simplenerf.model.nerf import mlp_nerf
 from simplenerf.module import SimpleNeRF
@@ -188,6 +189,12 @@ def test_backward_in_parts_gives_the_one_pass_loss_gradient_and_logs(datamodule,
     for loss_b, grad_b, logged_b in results[1:]:
         assert torch.allclose(loss_a, loss_b, rtol=1e-5) and logged_a == pytest.approx(logged_b, rel=1e-5)
         assert grad_a.shape == grad_b.shape and torch.allclose(grad_a, grad_b, rtol=1e-4, atol=1e-7)
+
+
+@pytest.mark.parametrize("per_part, rays", [(False, 1024), (True, 0)])
+def test_rays_per_backward_is_not_silently_ignored(per_part, rays):
+    with pytest.raises(SimpleNeRFError, match=f"model.rays_per_backward {rays} needs model.backward_per_part true"):
+        simplenerf_module(backward_per_part=per_part, rays_per_backward=rays)
 
 
 def test_ray_slices_cover_the_rays_in_parts_of_at_most_size():

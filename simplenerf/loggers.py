@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import netrc
 import os
+import struct
 from pathlib import Path
 
 from lightning.pytorch.loggers import WandbLogger as _LightningWandbLogger
@@ -69,3 +71,53 @@ class WandbLogger(_LightningWandbLogger):
             elif not getattr(run, "disabled", False):
                 print(f"W&B: {run.url}", flush=True)
         return run
+
+
+def logged_history(save_dir: str | Path) -> list[dict[str, object]]:
+    """The rows a run logged to W&B (every `log`/`log_dict` call, e.g. the losses and mask fractions over training),
+    read back from its local `<save_dir>/wandb/*-run-*/run-*.wandb` files (offline or synced runs; a resumed fit's
+    runs in the order they were started), without network or account. Each row maps the logged names to values.
+
+    The file is W&B's transaction log: the LevelDB log format (32 KiB blocks of records, each with a 7-byte header:
+    checksum, length, type FULL / FIRST / MIDDLE / LAST) after a 7-byte file header, holding `Record` protobufs.
+    """
+    from wandb.proto import wandb_internal_pb2
+
+    files = sorted(Path(save_dir).glob("wandb/*-run-*/run-*.wandb"), key=lambda f: f.parent.name.split("-", 2)[-1])
+    if not files:
+        raise FileNotFoundError(f"no W&B run in {Path(save_dir) / 'wandb'} (expected */run-*.wandb)")
+    rows = []
+    for file in files:
+        for data in _log_records(file):
+            record = wandb_internal_pb2.Record()
+            record.ParseFromString(data)
+            if record.WhichOneof("record_type") == "history":
+                rows.append({item.key or "/".join(item.nested_key): json.loads(item.value_json)
+                             for item in record.history.item})
+    return rows
+
+
+def _log_records(file: Path, block: int = 32768):
+    data = file.read_bytes()
+    if data[:4] != b":W&B":
+        raise ValueError(f"{file} is not a W&B run log (it starts {data[:4]!r}, expected b':W&B')")
+    pos, pending = 7, b""
+    while pos + 7 <= len(data):
+        left = block - pos % block
+        if left < 7:  # a block's tail too short for a header is padding
+            pos += left
+            continue
+        _, length, kind = struct.unpack("<IHB", data[pos : pos + 7])
+        if kind == 0:  # zero padding (a preallocated or unfinished block)
+            pos += left
+            continue
+        chunk, pos = data[pos + 7 : pos + 7 + length], pos + 7 + length
+        if kind == 1:
+            yield chunk
+        elif kind == 2:
+            pending = chunk
+        elif kind == 3:
+            pending += chunk
+        elif kind == 4:
+            yield pending + chunk
+            pending = b""

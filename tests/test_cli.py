@@ -205,6 +205,25 @@ def test_a_runs_saved_config_is_a_config_for_test_and_the_tools(trained, tmp_pat
     assert yaml.safe_load((run_dir / "config.yaml").read_text()) == saved
 
 
+def test_run_history_reads_what_the_fit_and_its_resume_logged(trained):
+    """tools/run_history.py reads the W&B files of both runs of the resumed fit (validations after steps 2, 4, 6,
+    logged at global steps 1, 3, 5), with no network."""
+    proc = subprocess.run([sys.executable, "tools/run_history.py", str(trained / "run"), "--keys", "val/psnr"],
+                          cwd=REPO, capture_output=True, text=True, check=True)
+    header, *rows = [line.split(",") for line in proc.stdout.splitlines()]
+    assert header == ["step", "val/psnr"] and [int(r[0]) for r in rows] == [1, 3, 5]
+    assert all(0 < float(r[1]) < 100 for r in rows)
+
+
+def test_history_table_merges_a_steps_scalars():
+    from tools.run_history import history_table
+
+    rows = [{"trainer/global_step": 9, "train/loss": 0.5, "epoch": 0}, {"trainer/global_step": 9, "train/psnr": 20.0},
+            {"trainer/global_step": 19, "train/loss": 0.25, "train/flag": True, "train/image": {"_type": "png"}},
+            {"train/loss": 1.0}]  # a row without a step is left out
+    assert history_table(rows, "train/.*") == (["step", "train/loss", "train/psnr"], [[9, 0.5, 20.0], [19, 0.25, ""]])
+
+
 def test_missing_lpips_weights_stop_test_before_writing(trained, tmp_path):
     (trained / "run" / "test").mkdir(exist_ok=True)
     marker = trained / "run" / "test" / "marker"

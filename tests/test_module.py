@@ -4,8 +4,8 @@ import pytest
 import torch
 
 from simplenerf.data.batches import TrainingBatch
-from simplenerf.errors import SimpleNeRFError
 from simplenerf.data.synthetic import SyntheticDataModule
+from simplenerf.errors import SimpleNeRFError
 from simplenerf.model.nerf import mlp_nerf
 from simplenerf.module import SimpleNeRF
 

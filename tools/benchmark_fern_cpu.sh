@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The CPU quality benchmark: SimpleNeRF (bidirectional and one_way supervision) vs the DS-NeRF baseline on LLFF fern,
-# images_8, 2 views, small networks, the same 5000-iteration budget (configs/cpu/*.yaml, about 30 minutes per
-# SimpleNeRF run on an idle 2-core CPU). For each run: fit, test (PSNR / SSIM / LPIPS on the 3 test frames) and the
+# images_8, 2 views, small networks, the same 5000-iteration budget (configs/cpu/*.yaml; a bidirectional SimpleNeRF
+# run took 68 minutes on the 2-core CPU in 2026-12, partly shared with other jobs). For each run: fit, test (PSNR / SSIM / LPIPS on the 3 test frames) and the
 # depth error at held-out SfM points (tools/heldout_depth_error.py); then one table of all runs.
 #
 #   tools/benchmark_fern_cpu.sh                       # all three, one after another

@@ -3,8 +3,10 @@
     python tools/heldout_depth_error.py --config configs/dsnerf.yaml --ckpt runs/dsnerf/checkpoints/last.ckpt \
         -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.factor 8
 
-Everything after `--` is passed to the CLI as overrides. Prints one JSON line; with `--out FILE` also writes it there
-(`<run>/heldout_depth.json` is where `tools/compare_runs.py` looks for it).
+Everything after `--` is passed to the CLI as overrides; `--config` may be the run's own `<run>/config.yaml`. Prints
+one JSON line: the fine depth's error, and under "depths" that of every depth the model renders (fine, coarse and each
+augmentation's); with `--out FILE` also writes it there (`<run>/heldout_depth.json` is where
+`tools/compare_runs.py` looks for it).
 """
 
 from __future__ import annotations
@@ -29,7 +31,8 @@ def main() -> None:
     cli = load_for_tool([args.config], overrides, ckpt=args.ckpt)
     dm, model = cli.datamodule, cli.model
     observations = heldout_observations(dm.scene, args.cache, str(dm.scene_dir.resolve()))
-    result = heldout_depth_error(model.nerf, dm.scene, observations, dm.near, model.hparams.chunk)
+    result = heldout_depth_error(model.nerf, dm.scene, observations, dm.near, model.hparams.chunk,
+                                 model.augmentations)
     line = json.dumps({"ckpt": args.ckpt, "overrides": overrides, **result})
     print(line)
     if args.out:

@@ -1,0 +1,38 @@
+"""Depth error at held-out keypoints: of the fine depth, and of every depth the model renders."""
+
+import numpy as np
+import pytest
+import torch
+
+from simplenerf.data.colmap import SparseDepth
+from simplenerf.data.synthetic import SyntheticDataModule
+from simplenerf.evaluation.heldout_depth import heldout_depth_error
+from tests.test_module import simplenerf_module
+
+
+def test_every_rendered_depth_is_scored_at_the_keypoints(tmp_path):
+    dm = SyntheticDataModule(root=str(tmp_path / "data"), height=48, width=64, n_frames=8, n_views=2,
+                             sparse_rays_per_batch=0)
+    dm.setup("test")
+    scene = dm.scene
+    model = simplenerf_module().eval()
+    frame = next(i for i in range(8) if i not in scene.split.train and i not in scene.split.test)
+    pixels = np.array([[3.5, 4.5], [20.0, 30.0], [40.25, 10.0], [63.0, 47.0], [31.5, 23.5]], np.float32)
+    rays = scene.views.rays(torch.full((5,), frame), torch.from_numpy(pixels).to(scene.views.c2w.dtype), dm.near)
+    with torch.no_grad():
+        renders = model.render(rays, randomized=False)
+    fine = renders.main.fine.depth.double()
+    reference = 2 * fine  # the fine depth is off by exactly a half everywhere
+    sd = SparseDepth(pixels, reference.float().numpy(), np.zeros(5, np.float32), np.arange(5))
+    result = heldout_depth_error(model.nerf, scene, {frame: sd}, dm.near, chunk=2, augmentations=model.augmentations)
+    sd_depth = torch.from_numpy(sd.depth).double()
+    expected = {"fine": fine, "coarse": renders.main.coarse.depth.double(),
+                **{name: r.depth.double() for name, r in renders.augmented.items()}}
+    assert set(result["depths"]) == {"fine", "coarse", "points", "views"}
+    for name, depth in expected.items():
+        error = (depth - sd_depth).abs() / sd_depth
+        assert result["depths"][name]["rel_error_mean"] == pytest.approx(float(error.mean()), rel=1e-5)
+        assert result["depths"][name]["rel_error_median"] == pytest.approx(float(error.median()), rel=1e-5)
+    assert result["rel_error_mean"] == pytest.approx(0.5, rel=1e-6) and result["points"] == 5 and result["frames"] == 1
+    # the augmented fields differ from the main ones, so their errors do too
+    assert result["depths"]["points"]["rel_error_mean"] != result["depths"]["coarse"]["rel_error_mean"]

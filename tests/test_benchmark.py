@@ -15,6 +15,7 @@ from simplenerf.benchmark import (
     field_evaluations_per_ray,
     linear_macs,
     matmul_flop_per_ray,
+    profile_main,
     render_main,
     side_by_side_table,
     train_step_main,
@@ -122,3 +123,18 @@ def test_train_step_and_render_run_through_the_cli(tmp_path, capsys):
     record = render_main(["--frames", "1", "--rows", "5", *_tiny(tmp_path)])
     assert record["frame_shape"][0] == 5 and record["rays_per_frame"] == 5 * record["frame_shape"][1]
     assert record["rays_per_s"] == pytest.approx(record["rays_per_frame"] / record["s_per_frame"])
+
+    record = profile_main(["--warmup", "1", *_tiny(tmp_path)])
+    assert record["matmul_gflop"] > 0 and record["matmul_s"] > 0 and record["other_ops_s"] > 0
+    assert record["matmul_s"] + record["other_ops_s"] == pytest.approx(record["profiled_self_cpu_s"], rel=1e-6)
+    assert "matrix products (aten::mm/addmm/bmm)" in capsys.readouterr().out
+
+
+def test_matmul_time_separates_the_matrix_products():
+    from simplenerf.benchmark.profile import matmul_time
+
+    events = [("aten::mm", 2.0, 300 * 10**9), ("aten::addmm", 1.0, 150 * 10**9), ("aten::relu", 0.5, 0),
+              ("aten::copy_", 0.25, 0)]
+    assert matmul_time(events) == {"matmul_s": 3.0, "matmul_gflop": 450.0, "matmul_gflop_per_s": 150.0,
+                                   "other_ops_s": 0.75}
+    assert matmul_time([("aten::relu", 0.5, 0)])["matmul_gflop_per_s"] == 0.0

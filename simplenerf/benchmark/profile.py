@@ -30,7 +30,7 @@ def profile_training(
                 activities = [ProfilerActivity.CPU]
                 if pl_module.device.type == "cuda":
                     activities.append(ProfilerActivity.CUDA)
-                self.profiler = profile(activities=activities)
+                self.profiler = profile(activities=activities, with_flops=True)
                 self.profiler.__enter__()
             super().on_train_batch_start(trainer, pl_module, batch, batch_idx)
 
@@ -45,6 +45,7 @@ def profile_training(
     assert timer.profiler is not None, "the profiled iteration did not run"
     events = timer.profiler.key_averages()
     total_self = sum(e.self_cpu_time_total for e in events)
+    matmul = matmul_time([(e.key, e.self_cpu_time_total / 1e6, e.flops) for e in events])
     rows = sorted(events, key=lambda e: e.self_cpu_time_total, reverse=True)[:top]
     return {
         "iteration_s": timer.iteration_s[warmup],
@@ -56,6 +57,7 @@ def profile_training(
         "cpu_over_wall": (timer.user_s[warmup] + timer.sys_s[warmup]) / timer.iteration_s[warmup],
         "warmup_s": [round(v, 4) for v in timer.iteration_s[:warmup]],
         "profiled_self_cpu_s": total_self / 1e6,
+        **matmul,
         "threads": torch.get_num_threads(),
         "peak_rss_gib": peak_rss_gib(),
         "top_ops": [
@@ -64,6 +66,19 @@ def profile_training(
             for e in rows
         ],
     }
+
+
+MATMUL_OPS = ("aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm")
+
+
+def matmul_time(events: list[tuple[str, float, int]]) -> dict[str, float]:
+    """Of the profiled operators (name, self CPU seconds, counted FLOPs): the seconds in matrix products (the MLP's
+    layers, forward and backward), their GFLOP and GFLOP/s, and the seconds in everything else."""
+    mm = [(s, f) for name, s, f in events if name in MATMUL_OPS]
+    seconds, flop = sum(s for s, _ in mm), sum(f for _, f in mm)
+    return {"matmul_s": seconds, "matmul_gflop": flop / 1e9,
+            "matmul_gflop_per_s": flop / 1e9 / seconds if seconds else 0.0,
+            "other_ops_s": sum(s for name, s, _ in events if name not in MATMUL_OPS)}
 
 
 def profile_table(result: dict) -> str:

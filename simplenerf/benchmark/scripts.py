@@ -121,7 +121,10 @@ def profile_main(argv: list[str] | None = None, description: str | None = None) 
     record = {**_header("profile", args, overrides), "warmup": args.warmup, **result}
     print(f"iteration {record['iteration_s']:.2f} s wall: user {record['user_s']:.2f} s, "
           f"system {record['sys_s']:.2f} s, {record['minor_faults']} minor page faults, {record['threads']} threads, "
-          f"peak RSS {record['peak_rss_gib']:.2f} GiB\n")
+          f"peak RSS {record['peak_rss_gib']:.2f} GiB")
+    print(f"matrix products (aten::mm/addmm/bmm) {record['matmul_s']:.2f} s at {record['matmul_gflop_per_s']:.0f} "
+          f"GFLOP/s ({record['matmul_gflop']:.0f} GFLOP), all other operators {record['other_ops_s']:.2f} s (self CPU "
+          f"time)\n")
     print(profile_table(record))
     _emit(record)
     return record

@@ -233,11 +233,14 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
     for a tool also `ckpt_path` and `weights_only`) are dropped where they do not apply.
     """
     reuse_freed_memory()
-    args = list(sys.argv[1:] if args is None else args)
-    if not run:
-        args = without_subcommand_keys(args, SUBCOMMAND_KEYS)
-    elif args[:1] != ["fit"]:
-        args = without_subcommand_keys(args, ("overwrite",))
+    given = list(sys.argv[1:] if args is None else args)
+    if not run:  # a tool: none of a subcommand's arguments apply
+        drop = SUBCOMMAND_KEYS
+    else:
+        drop = () if given[:1] == ["fit"] else ("overwrite",)
+    readable = without_subcommand_keys(given, drop)
+    if readable != given:
+        args = readable
     return cli_class(
         SimpleNeRF,
         LightningDataModule,

@@ -119,12 +119,15 @@ class _DropTips(logging.Filter):
 
 def quiet_libraries() -> None:
     """Keeps a normal run's output to what the user needs: no deprecation warnings of libraries (simplenerf's own
-    stay), no advertising tips from Lightning, no warning that a resumed run's checkpoint folder is not empty."""
+    stay), no advertising tips from Lightning, no warning that a resumed run's checkpoint folder is not empty or that
+    the CLI was given its arguments."""
     for category in (DeprecationWarning, PendingDeprecationWarning, FutureWarning):
         warnings.filterwarnings("ignore", category=category)
         warnings.filterwarnings("default", category=category, module=r"simplenerf(\.|$)")
     # Checked by the CLI before the run: the folder has checkpoints only when fit resumes from them.
     warnings.filterwarnings("ignore", message=r"Checkpoint directory .* exists and is not empty")
+    # make_cli passes the arguments itself when it makes a run's saved config readable (and tools always do).
+    warnings.filterwarnings("ignore", message=r"LightningCLI's args parameter is intended to run from within Python")
     for name in ("lightning.pytorch", "lightning.fabric"):
         for handler in logging.getLogger(name).handlers:
             handler.addFilter(_DropTips())

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import netrc
 import os
+import re
 import struct
 from pathlib import Path
 
@@ -75,7 +76,7 @@ class WandbLogger(_LightningWandbLogger):
 
 def logged_history(save_dir: str | Path) -> list[dict[str, object]]:
     """The rows a run logged to W&B (every `log`/`log_dict` call, e.g. the losses and mask fractions over training),
-    read back from its local `<save_dir>/wandb/*-run-*/run-*.wandb` files (offline or synced runs; a resumed fit's
+    read back from its local `<save_dir>/wandb/*run-*/run-*.wandb` files (offline or synced runs; a resumed fit's
     runs in the order they were started), without network or account. Each row maps the logged names to values.
 
     The file is W&B's transaction log: the LevelDB log format (32 KiB blocks of records, each with a 7-byte header:
@@ -83,7 +84,7 @@ def logged_history(save_dir: str | Path) -> list[dict[str, object]]:
     """
     from wandb.proto import wandb_internal_pb2
 
-    files = sorted(Path(save_dir).glob("wandb/*-run-*/run-*.wandb"), key=lambda f: f.parent.name.split("-", 2)[-1])
+    files = sorted(Path(save_dir).glob("wandb/*run-*/run-*.wandb"), key=_started)
     if not files:
         raise FileNotFoundError(f"no W&B run in {Path(save_dir) / 'wandb'} (expected */run-*.wandb)")
     rows = []
@@ -95,6 +96,12 @@ def logged_history(save_dir: str | Path) -> list[dict[str, object]]:
                 rows.append({item.key or "/".join(item.nested_key): json.loads(item.value_json)
                              for item in record.history.item})
     return rows
+
+
+def _started(file: Path) -> str:
+    """A run folder's start time, `[offline-]run-<YYYYmmdd_HHMMSS>-<id>` (its name if it has none)."""
+    match = re.search(r"run-(\d{8}_\d{6})", file.parent.name)
+    return match.group(1) if match else file.parent.name
 
 
 def _log_records(file: Path, block: int = 32768):

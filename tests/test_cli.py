@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -206,10 +207,14 @@ def test_a_runs_saved_config_is_a_config_for_test_and_the_tools(trained, tmp_pat
     assert yaml.safe_load((run_dir / "config.yaml").read_text()) == saved
 
 
-def test_run_history_reads_what_the_fit_and_its_resume_logged(trained):
+def test_run_history_reads_what_the_fit_and_its_resume_logged(trained, tmp_path):
     """tools/run_history.py reads the W&B files of both runs of the resumed fit (validations after steps 2, 4, 6,
-    logged at global steps 1, 3, 5), with no network."""
-    proc = subprocess.run([sys.executable, "tools/run_history.py", str(trained / "run"), "--keys", "val/psnr"],
+    logged at global steps 1, 3, 5), with no network. The two W&B runs the fits printed are copied to a folder of
+    their own (other tests validate the same run folder, which adds W&B runs)."""
+    for name in ("fit1", "fit2"):
+        [folder] = re.findall(r"W&B: offline run in (\S+)", (trained / f"{name}.stdout").read_text())
+        shutil.copytree(folder, tmp_path / "wandb" / Path(folder).name)
+    proc = subprocess.run([sys.executable, "tools/run_history.py", str(tmp_path), "--keys", "val/psnr"],
                           cwd=REPO, capture_output=True, text=True, check=True)
     header, *rows = [line.split(",") for line in proc.stdout.splitlines()]
     assert header == ["step", "val/psnr"] and [int(r[0]) for r in rows] == [1, 3, 5]

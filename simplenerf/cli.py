@@ -238,9 +238,9 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
         drop = SUBCOMMAND_KEYS
     else:
         drop = () if given[:1] == ["fit"] else ("overwrite",)
-    readable = without_subcommand_keys(given, drop)
-    if readable != given:
-        args = readable
+    if drop:  # (otherwise args stay as given: Lightning warns when args and sys.argv both hold arguments)
+        readable = without_subcommand_keys(given, drop)
+        args = readable if readable != given else args
     return cli_class(
         SimpleNeRF,
         LightningDataModule,

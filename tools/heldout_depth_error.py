@@ -31,8 +31,7 @@ def main() -> None:
     cli = load_for_tool([args.config], overrides, ckpt=args.ckpt)
     dm, model = cli.datamodule, cli.model
     observations = heldout_observations(dm.scene, args.cache, str(dm.scene_dir.resolve()))
-    result = heldout_depth_error(model.nerf, dm.scene, observations, dm.near, model.hparams.chunk,
-                                 model.augmentations)
+    result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk)
     line = json.dumps({"ckpt": args.ckpt, "overrides": overrides, **result})
     print(line)
     if args.out:

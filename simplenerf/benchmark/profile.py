@@ -59,7 +59,7 @@ def profile_training(
     flop = 0
     if timer.counter is not None:
         counts = timer.counter.get_flop_counts().get("Global", {})
-        flop = sum(n for op, n in counts.items() if f"aten::{str(op).split('.')[1]}" in MATMUL_OPS)
+        flop = sum(n for op, n in counts.items() if str(op).replace(".", "::") in MATMUL_OPS)  # aten.mm -> aten::mm
     matmul = matmul_time([(e.key, e.self_cpu_time_total / 1e6) for e in events], flop)
     rows = sorted(events, key=lambda e: e.self_cpu_time_total, reverse=True)[:top]
     return {

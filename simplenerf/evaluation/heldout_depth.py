@@ -7,7 +7,7 @@ never saw; the model's rendered depth at those keypoints is compared with the Sf
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -15,8 +15,9 @@ import torch
 from simplenerf.data.colmap import SparseDepth
 from simplenerf.data.scene import Scene
 from simplenerf.data.sparse_depth import load_or_compute_sparse_depth
-from simplenerf.method.augmentations import Augmentation
-from simplenerf.model.nerf import NeRF
+
+if TYPE_CHECKING:
+    from simplenerf.module import SimpleNeRF
 
 
 def heldout_observations(scene: Scene, cache_dir: str, scene_key: str) -> dict[int, SparseDepth]:
@@ -33,36 +34,29 @@ def heldout_observations(scene: Scene, cache_dir: str, scene_key: str) -> dict[i
 
 @torch.no_grad()
 def heldout_depth_error(
-    nerf: NeRF,
-    scene: Scene,
-    observations: dict[int, SparseDepth],
-    near: float,
-    chunk: int = 8192,
-    augmentations: Sequence[Augmentation] = (),
+    model: SimpleNeRF, scene: Scene, observations: dict[int, SparseDepth], near: float, chunk: int = 8192
 ) -> dict[str, object]:
     """Relative depth error |z - z_sfm| / z_sfm of the fine depth at the held-out keypoints, and under "depths" the
-    same for every depth the model renders: fine, coarse and each augmentation's (at the main model's samples of its
-    stage, as in training, deterministic).
+    same for every depth `model.render` gives: fine, coarse and each augmentation's (at the main model's samples of
+    its stage, as in training; deterministic here).
 
     Returns:
         mean and median relative error of the fine depth over all observations, their count, the number of frames,
         and "depths": {name: {"rel_error_mean", "rel_error_median"}}.
     """
-    device = next(nerf.parameters()).device
-    errors: dict[str, list[np.ndarray]] = {"fine": [], "coarse": [], **{aug.name: [] for aug in augmentations}}
+    device = next(model.parameters()).device
+    errors: dict[str, list[np.ndarray]] = {}
     for frame, sd in observations.items():
         uv = torch.from_numpy(sd.pixels).to(scene.views.c2w.dtype)
         rays = scene.views.rays(torch.full((len(sd),), frame), uv, near).to(device)
-        depths: dict[str, list[torch.Tensor]] = {name: [] for name in errors}
+        depths: dict[str, list[torch.Tensor]] = {}
         for start in range(0, len(rays), chunk):
-            main = nerf(rays[start : start + chunk], randomized=False)
-            depths["fine"].append(main.fine.depth)
-            depths["coarse"].append(main.coarse.depth)
-            for aug in augmentations:
-                depths[aug.name].append(aug.render(nerf, main, randomized=False).depth)
+            renders = model.render(rays[start : start + chunk], randomized=False)
+            for name, out in {"fine": renders.main.fine, "coarse": renders.main.coarse, **renders.augmented}.items():
+                depths.setdefault(name, []).append(out.depth)
         for name, parts in depths.items():
             depth = torch.cat(parts).cpu().double().numpy()
-            errors[name].append(np.abs(depth - sd.depth) / sd.depth)
+            errors.setdefault(name, []).append(np.abs(depth - sd.depth) / sd.depth)
     stats = {}
     for name, parts in errors.items():
         e = np.concatenate(parts)

@@ -24,7 +24,7 @@ def test_every_rendered_depth_is_scored_at_the_keypoints(tmp_path):
     fine = renders.main.fine.depth.double()
     reference = 2 * fine  # the fine depth is off by exactly a half everywhere
     sd = SparseDepth(pixels, reference.float().numpy(), np.zeros(5, np.float32), np.arange(5))
-    result = heldout_depth_error(model.nerf, scene, {frame: sd}, dm.near, chunk=2, augmentations=model.augmentations)
+    result = heldout_depth_error(model, scene, {frame: sd}, dm.near, chunk=2)
     sd_depth = torch.from_numpy(sd.depth).double()
     expected = {"fine": fine, "coarse": renders.main.coarse.depth.double(),
                 **{name: r.depth.double() for name, r in renders.augmented.items()}}

@@ -38,8 +38,13 @@ def _as_array(x) -> np.ndarray:
 
 
 def compare(group: str, quantity: str, ours, release, rtol: float = 1e-5, atol: float = 1e-6, floor: float = 1e-6,
-            note: str = "") -> Row:
-    """One row: ours vs the release's values (any array-likes or tensors of equal shape)."""
+            note: str = "", relative_to: str = "element") -> Row:
+    """One row: ours vs the release's values (any array-likes or tensors of equal shape).
+
+    `relative_to="max"`: errors relative to the largest |value| of the release's tensor: passes when
+    max |a - b| <= rtol max |b|. `relative_to="norm"`: the tensor's relative error ||a - b|| / ||b|| <= rtol (a
+    gradient is a sum over many samples; the rows then show the max abs error beside it).
+    """
     a, b = _as_array(ours), _as_array(release)
     if a.shape != b.shape:
         return Row(group, quantity, math.inf, math.inf, False, "shape", f"shape {a.shape} vs release {b.shape}. {note}")
@@ -51,6 +56,13 @@ def compare(group: str, quantity: str, ours, release, rtol: float = 1e-5, atol: 
     a, b = a[finite_a], b[finite_b]
     diff = np.abs(a - b)
     max_abs = float(diff.max()) if diff.size else 0.0
+    if relative_to == "norm":  # ||a - b|| / ||b||: a whole tensor's relative error
+        max_rel = float(np.linalg.norm(a - b) / max(float(np.linalg.norm(b)), floor))
+        return Row(group, quantity, max_abs, max_rel, max_rel <= rtol, f"norm-rel {rtol:g}", note, int(a.size))
+    if relative_to == "max":
+        scale = float(np.abs(b).max()) if b.size else 0.0
+        max_rel = max_abs / max(scale, floor)
+        return Row(group, quantity, max_abs, max_rel, max_rel <= rtol, f"max-rel {rtol:g}", note, int(a.size))
     max_rel = float((diff / np.maximum(np.abs(b), floor)).max()) if diff.size else 0.0
     passed = bool(np.all(diff <= atol + rtol * np.abs(b)))
     tolerance = "exact" if rtol == 0 and atol == 0 else f"rtol {rtol:g} atol {atol:g}"

@@ -83,7 +83,8 @@ def _source_patches(
 
 
 def _reprojection_error(
-    views: Views, rays: RayBatch, depth: torch.Tensor, source: torch.Tensor, inside: torch.Tensor, patch_size: int
+    views: Views, rays: RayBatch, depth: torch.Tensor, source: torch.Tensor, inside: torch.Tensor, patch_size: int,
+    require_in_front: bool = True,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """`patch_reprojection_error` given the already gathered source patches [R, k * k, 3] and their validity [R]."""
     target_view = views.nearest[rays.view]
@@ -92,7 +93,9 @@ def _reprojection_error(
     centre, target_inside = _centre_pixels(uv_target, views.height, views.width, patch_size // 2)
     target = _gather_patches(views.images, target_view, centre, patch_size)
     error = (source - target).square().mean(dim=(1, 2)).sqrt()
-    valid = inside & target_inside & (z_target > 0)
+    valid = inside & target_inside
+    if require_in_front:
+        valid = valid & (z_target > 0)
     return error.masked_fill(~valid, math.inf), valid
 
 
@@ -203,24 +206,30 @@ class ReliabilityMask(abc.ABC):
 class PatchReprojectionMask(ReliabilityMask):
     """The paper's mask: the depth whose k x k patch reprojects better into the nearest train view, if good enough."""
 
-    def __init__(self, patch_size: int = 5, error_threshold: float = 0.1) -> None:
+    def __init__(self, patch_size: int = 5, error_threshold: float = 0.1, require_in_front: bool = True) -> None:
         """
         Args:
             patch_size: side k of the square patch compared between views (odd).
             error_threshold: e_tau, the patch RMSE (images in [0, 1]) below which a depth can be trusted.
+            require_in_front: a depth whose 3D point lies behind the nearest view's camera is never trusted. The
+                release (`loss_functions/*DepthLoss02.py`, `utils/CommonUtils01.reproject`) has no such check: a
+                point behind the camera projects through the pinhole mirrored and may be compared with an unrelated
+                patch. False reproduces the release (used by `benchmarks/release_equivalence.py`).
         """
         _check_patch_size(patch_size)
         if not error_threshold > 0:
             raise ValueError(f"error_threshold must be positive, got {error_threshold}")
         self.patch_size, self.error_threshold = patch_size, error_threshold
+        self.require_in_front = require_in_front
 
     def errors(
         self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Reprojection errors of both depths, [R] each (inf where invalid), sharing one gather of the source patch."""
         source, inside = _source_patches(views.images, rays.view, rays.uv, self.patch_size)
-        error_main, _ = _reprojection_error(views, rays, z_main, source, inside, self.patch_size)
-        error_other, _ = _reprojection_error(views, rays, z_other, source, inside, self.patch_size)
+        error_main, _ = _reprojection_error(views, rays, z_main, source, inside, self.patch_size, self.require_in_front)
+        error_other, _ = _reprojection_error(views, rays, z_other, source, inside, self.patch_size,
+                                             self.require_in_front)
         return error_main, error_other
 
     def __call__(self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,291 @@
+"""One training step on both sides, from the same weights, rays and random draws: every output, loss, mask and gradient.
+
+The release's step is its own `Trainer01.Trainer.train_one_iter` (sub-batches of `sub_batch_size` rays, a backward per
+sub-batch, then `optimizer.step()`), fed a batch that its data preprocessor made (`get_next_batch`). Ours is our
+`SimpleNeRF.training_step` (the paper config's `backward_per_part`: random rays, then sparse rays, each rendered and
+backpropagated; Lightning's backward of the returned loss is done here), then our optimiser's step. What is captured:
+
+- outputs: the release's `SimpleNeRF.forward` returns (per-sample sigma and rgb, weights, rendered rgb, depth and
+  accumulation of each MLP); ours from `SimpleNeRF.render`, `NeRF.evaluate` and the density function.
+- losses: the release's per-iteration loss dict (summed over sub-batches as `train_one_iter` does); ours as logged.
+- masks: the release's masks are the `mask` arguments of `compute_depth_mse` in `loss_functions/*DepthLoss02.py`
+  and `CoarseFineConsistencyLoss02.py` (first call: where the other depth is better, ours +1; second: where the main
+  depth is better, ours -1); ours are the `mask` arguments of `masked_depth_loss`.
+- gradients just before `optimizer.step()`, and the weights just after it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from benchmarks.equivalence import randomness
+from benchmarks.equivalence.report import Row, compare, exact
+from benchmarks.equivalence.weights import paired
+
+# Release loss names -> our logged term (summed where several release losses make one of ours).
+TERMS = {
+    "color": ("MSE01", "MSE02", "MSE03"),
+    "sparse_depth": ("SparseDepthMSE01", "SparseDepthMSE02", "SparseDepthMSE03"),
+    "points": ("PointsAugmentationDepthLoss02",),
+    "views": ("ViewsAugmentationDepthLoss02",),
+    "cfc": ("CoarseFineConsistencyLoss02",),
+}
+MASK_LOSSES = {"points": "PointsAugmentationDepthLoss02", "views": "ViewsAugmentationDepthLoss02",
+               "cfc": "CoarseFineConsistencyLoss02"}
+# Release output key prefix per model; ours: (where in Renders, which field-call index within a forward).
+MODELS = {"main coarse": "", "main fine": "", "points": "points_augmentation_", "views": "views_augmentation_"}
+
+
+def to_training_batch(batch: dict):
+    """The release's batch (random rays where `indices_mask_nerf`, sparse-depth rays where
+    `indices_mask_sparse_depth`) as our `TrainingBatch`, with the release's own rays."""
+    from simplenerf.data.batches import RayBatch, SparseDepthBatch, TrainingBatch
+    from simplenerf.geometry.rays import RayBundle
+
+    def rays(mask):
+        return RayBundle(batch["rays_o"][mask].clone(), batch["rays_d"][mask].clone(),
+                         batch["rays_o_ndc"][mask].clone(), batch["rays_d_ndc"][mask].clone())
+
+    def pixels(mask):
+        pid = batch["pixel_id"][mask].long()
+        return pid[:, 0], pid[:, 1:3].to(batch["rays_o"].dtype)
+
+    nerf, sd = batch["indices_mask_nerf"], batch["indices_mask_sparse_depth"]
+    view, uv = pixels(nerf)
+    random = RayBatch(rays(nerf), batch["target_rgb"][nerf].clone(), view, uv)
+    view_sd, uv_sd = pixels(sd)
+    depth = batch["sparse_depth_values"][sd][:, 0].clone()
+    sparse = SparseDepthBatch(rays(sd), batch["target_rgb"][sd].clone(), view_sd, uv_sd, depth, torch.ones_like(depth))
+    return TrainingBatch(random, sparse)
+
+
+def train_views(batch: dict):
+    """The train views the release's masks look at (`common_data`: poses, images, intrinsics) as our `Views`."""
+    from simplenerf.geometry.views import Views
+
+    common = batch["common_data"]
+
+    def tensor(x):
+        x = torch.as_tensor(x)
+        return x[0] if x.ndim == 4 and x.shape[0] == 1 and "images" not in str(x.shape) else x
+
+    poses, images, intrinsics = (torch.as_tensor(common[k]) for k in ("poses", "images", "intrinsics"))
+    if images.ndim == 5:  # repeated per GPU by `load_cached_next_batch`
+        poses, images, intrinsics = poses[0], images[0], intrinsics[0]
+    return Views(images=images.to(torch.get_default_dtype()), intrinsics=intrinsics.to(torch.get_default_dtype()),
+                 c2w=poses[:, :3, :4].to(torch.get_default_dtype()), names=[str(i) for i in range(len(poses))])
+
+
+@dataclass
+class StepRecord:
+    """What one side computed in one step."""
+
+    losses: dict[str, float] = field(default_factory=dict)
+    outputs: list[dict[str, torch.Tensor]] = field(default_factory=list)  # per forward: "<model> <quantity>" -> [R, ...]
+    masks: dict[str, list[torch.Tensor]] = field(default_factory=dict)  # per loss: per forward [R] in {-1, 0, 1}
+    grads: dict[str, torch.Tensor] = field(default_factory=dict)  # our parameter names
+    weights_after: dict[str, torch.Tensor] = field(default_factory=dict)
+    weights_before: dict[str, torch.Tensor] = field(default_factory=dict)
+
+
+def run_release_step(run, batch: dict, iter_num: int, generator: torch.Generator) -> tuple[StepRecord, list]:
+    """The release's `train_one_iter` on `batch`; returns what it computed and its random draws per forward."""
+    record, log = StepRecord(), []
+    model, losses = run.model, run.loss_computer.losses
+    forward = model.forward
+
+    def capture_forward(*args, **kwargs):
+        out = forward(*args, **kwargs)
+        record.outputs.append({k: v.detach().clone() for k, v in out.items()})
+        return out
+
+    def capture_masks(name, original):
+        def compute_depth_mse(pred, gt, mask=None):
+            if mask is not None:
+                record.masks.setdefault(name, []).append(mask.detach().clone())
+            return original(pred, gt, mask)
+        return compute_depth_mse
+
+    step = run.optimizer.step
+
+    def capture_step(*args, **kwargs):
+        for name, p in model.named_parameters():
+            record.grads[name] = p.grad.detach().clone()
+            record.weights_before[name] = p.detach().clone()
+        out = step(*args, **kwargs)
+        record.weights_after = {n: p.detach().clone() for n, p in model.named_parameters()}
+        return out
+
+    model.forward = capture_forward
+    for ours_name, loss_name in MASK_LOSSES.items():
+        if loss_name in losses:
+            losses[loss_name].compute_depth_mse = capture_masks(ours_name, type(losses[loss_name]).compute_depth_mse)
+    run.optimizer.step = capture_step
+    run.data.get_next_batch = lambda *a, **k: batch
+    lr = run.lr_decayer.get_updated_learning_rate(iter_num)
+    for group in run.optimizer.param_groups:
+        group["lr"] = lr
+    try:
+        with randomness.recording(generator, log):
+            record.losses = dict(run.trainer.train_one_iter(iter_num))
+    finally:
+        del model.forward, run.optimizer.step, run.data.get_next_batch
+        for loss_name in MASK_LOSSES.values():
+            if loss_name in losses:
+                losses[loss_name].__dict__.pop("compute_depth_mse", None)
+    return record, randomness.split_forwards(log)
+
+
+def release_draws(run, forwards: list, coarse_models: list[str]) -> list[randomness.Draws]:
+    cfg = run.config["model"]
+    out = []
+    for log in forwards:
+        num_rays = log[0][1].shape[0]
+        out.append(randomness.release_roles(log, num_rays, cfg["coarse_mlp"]["num_samples"],
+                                            cfg["fine_mlp"]["num_samples"], coarse_models))
+    return out
+
+
+def our_optimizer(module, step: int) -> torch.optim.Optimizer:
+    """Our configured optimiser (`configure_optimizers`) with the learning rate our schedule gives at `step`."""
+    configured = module.configure_optimizers()
+    optimizer, schedule = configured["optimizer"], configured["lr_scheduler"]["scheduler"]
+    for group in optimizer.param_groups:
+        group["lr"] = group["initial_lr"] * schedule.lr_lambdas[0](step)
+    return optimizer
+
+
+def run_our_step(module, batch, draws: list[randomness.Draws], optimizer: torch.optim.Optimizer) -> StepRecord:
+    """Our `training_step` (+ the backward Lightning would do) and `optimizer.step()`, with the release's draws."""
+    import simplenerf.model.nerf as nerf_module
+    import simplenerf.module as module_module
+
+    record = StepRecord()
+    density, masked = nerf_module.density, module_module.masked_depth_loss
+    evaluate, render = module.nerf.evaluate, module.render
+    calls: list[tuple[torch.Tensor, torch.Tensor | None]] = []  # per field call: (sigma, rgb)
+    pending_rgb: list[torch.Tensor | None] = []
+
+    def capture_evaluate(field, samples):
+        out = evaluate(field, samples)
+        pending_rgb.append(None if out.rgb is None else out.rgb.detach().clone())
+        return out
+
+    def capture_density(raw, noise_std, generator=None):
+        sigma = density(raw, noise_std, generator)
+        calls.append((sigma.detach().clone(), pending_rgb.pop(0)))
+        return sigma
+
+    def capture_render(rays, randomized, color=True):
+        calls.clear()
+        renders = render(rays, randomized, color)
+        names = ["main coarse", "main fine", *renders.augmented]
+        outputs = {}
+        for name, (sigma, rgb) in zip(names, calls, strict=True):
+            outputs[f"{name} sigma"] = sigma
+            if rgb is not None:
+                outputs[f"{name} sample rgb"] = rgb
+        for name, r in [("main coarse", renders.main.coarse), ("main fine", renders.main.fine),
+                        *renders.augmented.items()]:
+            outputs[f"{name} weights"] = r.weights.detach().clone()
+            outputs[f"{name} depth"] = r.depth.detach().clone()
+            outputs[f"{name} accumulation"] = r.accumulation.detach().clone()
+            if r.rgb is not None:
+                outputs[f"{name} rgb"] = r.rgb.detach().clone()
+        outputs["coarse t"] = renders.main.coarse_samples.t.detach().clone()
+        outputs["fine t"] = renders.main.fine_samples.t.detach().clone()
+        record.outputs.append(outputs)
+        return renders
+
+    order = [pair for pair in ("points", "views", "cfc")]
+    mask_calls: list[torch.Tensor] = []
+
+    def capture_masked(z_main, z_other, mask, direction):
+        mask_calls.append(mask.detach().clone())
+        return masked(z_main, z_other, mask, direction)
+
+    logged: dict[str, torch.Tensor] = {}
+    module.nerf.evaluate, module.render = capture_evaluate, capture_render
+    nerf_module.density, module_module.masked_depth_loss = capture_density, capture_masked
+    module.log_dict = lambda values, **kwargs: logged.update(values)
+    module.log = lambda name, value, **kwargs: logged.__setitem__(name, value)
+    module.zero_grad(set_to_none=True)
+    try:
+        with randomness.replaying(draws, [aug.name for aug in module.augmentations]):
+            loss = module.training_step(batch, 0)
+            loss.backward()  # Lightning's automatic optimisation: backward of the returned loss
+    finally:
+        del module.nerf.evaluate, module.render, module.log_dict, module.log
+        nerf_module.density, module_module.masked_depth_loss = density, masked
+    names = [n for n in order if n in module.loss_weights and module.loss_weights[n] > 0]
+    names = [n for n in names if n != "cfc" or module.coarse_fine_mask is not None]
+    for i, mask in enumerate(mask_calls):  # one forward of random rays: one call per masked loss, in `depth_pairs` order
+        record.masks.setdefault(names[i % len(names)], []).append(mask)
+    record.losses = {k.removeprefix("train/loss_"): float(v) for k, v in logged.items() if k.startswith("train/loss_")}
+    record.losses["total"] = float(logged["train/loss"])
+    record.grads = {n: p.grad.detach().clone() for n, p in module.named_parameters()}
+    optimizer.step()
+    record.weights_after = {n: p.detach().clone() for n, p in module.named_parameters()}
+    return record
+
+
+def release_outputs(out: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """The release's forward outputs under our names (see `MODELS`)."""
+    result = {}
+    for model, prefix in MODELS.items():
+        stage = "fine" if model == "main fine" else "coarse"
+        if f"{prefix}depth_{stage}" not in out:
+            continue
+        result[f"{model} sigma"] = out[f"{prefix}raw_sigma_{stage}"][..., 0]
+        result[f"{model} sample rgb"] = out[f"{prefix}raw_rgb_{stage}"]
+        for ours, theirs in [("weights", "weights"), ("depth", "depth"), ("accumulation", "acc"), ("rgb", "rgb")]:
+            if f"{prefix}{theirs}_{stage}" in out:
+                result[f"{model} {ours}"] = out[f"{prefix}{theirs}_{stage}"]
+    result["coarse t"], result["fine t"] = out["z_vals_coarse"], out["z_vals_fine"]
+    return result
+
+
+def step_rows(group: str, release: StepRecord, ours: StepRecord, release_model, our_module, mapping: dict[str, str],
+              rtol: float, atol: float, grad_rtol: float, update_rtol: float) -> list[Row]:
+    """The rows of one step: outputs of every forward, loss terms, masks, gradients and weights after the step."""
+    rows = []
+    kinds = ["random rays", "sparse rays"]
+    for i, (theirs, mine) in enumerate(zip(release.outputs, ours.outputs, strict=True)):
+        theirs = release_outputs(theirs)
+        for key in mine:
+            if key not in theirs:
+                continue
+            rows.append(compare(f"{group} outputs, {kinds[i] if i < 2 else i}", key, mine[key], theirs[key],
+                                rtol=rtol, atol=atol))
+    for term, names in TERMS.items():
+        present = [n for n in names if n in release.losses]
+        if term in ours.losses and present:
+            rows.append(compare(f"{group} losses", f"L_{term} ({' + '.join(present)})", ours.losses[term],
+                                sum(release.losses[n] for n in present), rtol=rtol, atol=atol))
+    rows.append(compare(f"{group} losses", "total (TotalLoss)", ours.losses["total"], release.losses["TotalLoss"],
+                        rtol=rtol, atol=atol))
+    for term, masks in release.masks.items():
+        # The release's calls per forward: mask2 (other better, ours +1) then mask1 (main better, ours -1); only the
+        # forward of the random rays has rays to mask (the sparse sub-batch's masks are empty).
+        release_ternary = [m2.to(torch.int64) - m1.to(torch.int64) for m2, m1 in zip(masks[0::2], masks[1::2])]
+        release_ternary = torch.cat(release_ternary)
+        mine = torch.cat(ours.masks.get(term, [])).to(torch.int64) if ours.masks.get(term) else torch.zeros(0)
+        counts = ", ".join(f"{v:+d}: {int((release_ternary == v).sum())}" for v in (1, -1, 0))
+        rows.append(exact(f"{group} masks", f"{term} mask per ray (release {counts})", mine, release_ternary))
+    grads = list(paired(release_model, our_module, mapping, lambda p: p.grad))
+    for release_name, our_name, _, theirs in grads:
+        rows.append(compare(f"{group} gradients", f"{our_name} <- {release_name}", ours.grads[our_name], theirs,
+                            rtol=grad_rtol, relative_to="norm"))
+    # The Adam step: the update w_after - w_before of each parameter, relative to the largest update (about lr).
+    before = dict(release_model.named_parameters())
+    from benchmarks.equivalence.weights import release_to_ours
+
+    for release_name, our_name in mapping.items():
+        start = release_to_ours(release_name, release.weights_before[release_name])
+        rows.append(compare(f"{group} Adam step", f"{our_name} update", ours.weights_after[our_name] - start,
+                            release_to_ours(release_name, release.weights_after[release_name]) - start,
+                            rtol=update_rtol, relative_to="norm"))
+    del before
+    return rows

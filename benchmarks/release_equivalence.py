@@ -130,6 +130,15 @@ def main() -> int:
                     "PatchReprojectionMask.require_in_front=false; rays_per_backward=null; supervision one_way; "
                     "coarse_fine_on_sparse_rays true; sparse-depth weights 1"))
 
+    if args.trajectory_steps:
+        from benchmarks.equivalence.trajectory import run_trajectory
+
+        run.data.num_rays = run.data.num_rays_sparse_depth = args.trajectory_rays
+        run.config["sub_batch_size"] = args.trajectory_rays
+        loss_rtol, weight_rtol = (1e-4, 1e-3) if dtype == torch.float32 else (1e-6, 1e-5)
+        report.add(*run_trajectory(run, module, args.trajectory_steps, args.seed, group, loss_rtol, weight_rtol,
+                                   log=lambda line: print(line, file=sys.stderr, flush=True)))
+
     print(report.markdown())
     print(f"\n{time.perf_counter() - started:.0f} s", file=sys.stderr)
     if args.out:

@@ -247,6 +247,16 @@ def release_outputs(out: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     return result
 
 
+def ternary_masks(release: StepRecord, ours: StepRecord):
+    """(loss name, the release's ternary mask [R], ours [R]) per masked loss. The release's `compute_depth_mse` calls
+    per forward: mask2 (the other depth is better: ours +1), then mask1 (the main depth is better: ours -1); only the
+    forward of the random rays has rays to mask (the sparse sub-batch's masks are empty)."""
+    for term, masks in release.masks.items():
+        theirs = torch.cat([m2.to(torch.int64) - m1.to(torch.int64) for m2, m1 in zip(masks[0::2], masks[1::2])])
+        mine = torch.cat(ours.masks[term]).to(torch.int64) if ours.masks.get(term) else torch.zeros(0)
+        yield term, theirs, mine
+
+
 def step_rows(group: str, release: StepRecord, ours: StepRecord, release_model, our_module, mapping: dict[str, str],
               rtol: float, atol: float, grad_rtol: float, update_rtol: float) -> list[Row]:
     """The rows of one step: outputs of every forward, loss terms, masks, gradients and weights after the step."""
@@ -266,12 +276,7 @@ def step_rows(group: str, release: StepRecord, ours: StepRecord, release_model, 
                                 sum(release.losses[n] for n in present), rtol=rtol, atol=atol))
     rows.append(compare(f"{group} losses", "total (TotalLoss)", ours.losses["total"], release.losses["TotalLoss"],
                         rtol=rtol, atol=atol))
-    for term, masks in release.masks.items():
-        # The release's calls per forward: mask2 (other better, ours +1) then mask1 (main better, ours -1); only the
-        # forward of the random rays has rays to mask (the sparse sub-batch's masks are empty).
-        release_ternary = [m2.to(torch.int64) - m1.to(torch.int64) for m2, m1 in zip(masks[0::2], masks[1::2])]
-        release_ternary = torch.cat(release_ternary)
-        mine = torch.cat(ours.masks.get(term, [])).to(torch.int64) if ours.masks.get(term) else torch.zeros(0)
+    for term, release_ternary, mine in ternary_masks(release, ours):
         counts = ", ".join(f"{v:+d}: {int((release_ternary == v).sum())}" for v in (1, -1, 0))
         rows.append(exact(f"{group} masks", f"{term} mask per ray (release {counts})", mine, release_ternary))
     grads = list(paired(release_model, our_module, mapping, lambda p: p.grad))

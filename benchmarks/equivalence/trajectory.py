@@ -1,0 +1,71 @@
+"""Many training steps on both sides from the same initial weights, with the same ray batches and random draws.
+
+Each iteration the release's data preprocessor draws the batch (`get_next_batch`, its own shuffled ray order) and the
+release's `train_one_iter` trains on it; ours trains on the same rays (`step.to_training_batch`) with the release's
+random draws of that iteration, with our configured optimiser and learning-rate schedule. The masked losses are on
+from iteration 0 on both sides (the release's `iter_weights` set to {0: 0.1}, our weights to 0.1), so every term
+is exercised in a short run. Per-iteration losses and the final weights are compared.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from benchmarks.equivalence import step as steps
+from benchmarks.equivalence.report import Row, compare
+from benchmarks.equivalence.weights import copy_release_weights, release_to_ours
+
+
+def run_trajectory(run, module, num_steps: int, seed: int, group: str, loss_rtol: float, weight_rtol: float,
+                   log=print) -> list[Row]:
+    for name in steps.MASK_LOSSES.values():
+        if name in run.loss_computer.losses:
+            run.loss_computer.losses[name].loss_configs["iter_weights"] = {"0": 0.1}
+    for name in ("points", "views", "cfc"):
+        module.loss_weights[name] = 0.1
+    mapping = copy_release_weights(run.model, module)
+    run.optimizer = run.trainer.optimizer = torch.optim.Adam(
+        list(run.model.parameters()), lr=run.config["optimizer"]["lr_initial"],
+        betas=(run.config["optimizer"]["beta1"], run.config["optimizer"]["beta2"]))
+    configured = module.configure_optimizers()
+    optimizer, schedule = configured["optimizer"], configured["lr_scheduler"]["scheduler"]
+    generator = torch.Generator().manual_seed(seed)
+    ours_losses, release_losses = [], []
+    flips: dict[str, list[int]] = {}  # masked loss -> per step, rays whose mask decision differs
+    for it in range(num_steps):
+        batch = run.data.get_next_batch(it)
+        if not bool(batch["indices_mask_sparse_depth"].any()):
+            raise RuntimeError("the release returned no sparse-depth rays: use a larger sparse-depth pool")
+        ours_batch = steps.to_training_batch(batch)
+        theirs, forwards = steps.run_release_step(run, batch, it, generator)
+        draws = steps.release_draws(run, forwards, ["coarse", "points", "views"])
+        mine = steps.run_our_step(module, ours_batch, draws, optimizer)
+        schedule.step()  # Lightning steps the "step"-interval schedule after each optimiser step
+        for term, release_mask, our_mask in steps.ternary_masks(theirs, mine):
+            flips.setdefault(term, []).append(int((release_mask != our_mask).sum()))
+        release_losses.append(theirs.losses)
+        ours_losses.append(mine.losses)
+        if it % 20 == 0 or it == num_steps - 1:
+            log(f"trajectory {it}: total ours {mine.losses['total']:.6f} release {theirs.losses['TotalLoss']:.6f}")
+    rows = []
+    for term, names in [*steps.TERMS.items(), ("total", ("TotalLoss",))]:
+        ours_series = [row[term] for row in ours_losses]
+        release_series = [sum(row[n] for n in names if n in row) for row in release_losses]
+        rows.append(compare(f"{group} trajectory, {num_steps} steps", f"per-step L_{term}", ours_series,
+                            release_series, rtol=loss_rtol, atol=0, floor=1e-8))
+    for term, counts in flips.items():
+        first = next((i for i, c in enumerate(counts) if c), None)
+        rows.append(Row(f"{group} trajectory, {num_steps} steps", f"{term} mask: rays decided differently",
+                        float(sum(counts)), 0.0, True, "reported",
+                        f"of {num_steps} x {len(ours_batch.random)} rays; first at step {first}", num_steps))
+    release_params = dict(run.model.named_parameters())
+    ours_params = dict(module.named_parameters())
+    errors = [(our_name, compare("", "", ours_params[our_name],
+                                 release_to_ours(release_name, release_params[release_name]),
+                                 relative_to="norm", rtol=weight_rtol))
+              for release_name, our_name in mapping.items()]
+    worst = max(errors, key=lambda e: e[1].max_rel)
+    rows.append(Row(f"{group} trajectory, {num_steps} steps", "final weights, worst parameter "
+                    f"({worst[0]})", worst[1].max_abs, worst[1].max_rel, all(e.passed for _, e in errors),
+                    f"norm-rel {weight_rtol:g}", "", sum(e.count for _, e in errors)))
+    return rows

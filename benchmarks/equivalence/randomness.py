@@ -43,7 +43,8 @@ def recording(generator: torch.Generator, log: list[tuple[str, torch.Tensor]]):
 
     def make(kind, fn):
         def draw(*args, **kwargs):
-            value = fn(_shape(args, kwargs), generator=generator, dtype=kwargs.get("dtype") or torch.get_default_dtype())
+            dtype = kwargs.get("dtype") or torch.get_default_dtype()
+            value = fn(_shape(args, kwargs), generator=generator, dtype=dtype)
             log.append((kind, value))
             return value.clone()
         return draw
@@ -66,7 +67,8 @@ def release_roles(log: list[tuple[str, torch.Tensor]], num_rays: int, num_coarse
     coarse_noise = torch.cat([v.reshape(-1) for k, v in log[1:second]])
     fine_noise = torch.cat([v.reshape(-1) for k, v in log[second + 1 :]])
     per_model = num_rays * num_coarse
-    if coarse_noise.numel() != per_model * len(coarse_models) or fine_noise.numel() != num_rays * (num_coarse + num_fine):
+    fine_size = num_rays * (num_coarse + num_fine)
+    if coarse_noise.numel() != per_model * len(coarse_models) or fine_noise.numel() != fine_size:
         raise AssertionError(f"noise sizes {coarse_noise.numel()}, {fine_noise.numel()} do not match {num_rays} rays "
                              f"x {num_coarse}+{num_fine} samples and models {coarse_models}")
     noise = {name: coarse_noise[i * per_model : (i + 1) * per_model].reshape(num_rays, num_coarse)

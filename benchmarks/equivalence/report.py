@@ -98,5 +98,6 @@ class Report:
                          f"| {'PASS' if r.passed else 'FAIL'} | {r.note} |")
         failed = sum(not r.passed for r in self.rows)
         lines.append("")
-        lines.append(f"{len(self.rows) - failed} of {len(self.rows)} rows pass" + (f", {failed} FAIL" if failed else ""))
+        summary = f"{len(self.rows) - failed} of {len(self.rows)} rows pass"
+        lines.append(summary + (f", {failed} FAIL" if failed else ""))
         return "\n".join(lines)

@@ -83,7 +83,8 @@ class StepRecord:
     """What one side computed in one step."""
 
     losses: dict[str, float] = field(default_factory=dict)
-    outputs: list[dict[str, torch.Tensor]] = field(default_factory=list)  # per forward: "<model> <quantity>" -> [R, ...]
+    # per forward: "<model> <quantity>" -> [R, ...]
+    outputs: list[dict[str, torch.Tensor]] = field(default_factory=list)
     masks: dict[str, list[torch.Tensor]] = field(default_factory=dict)  # per loss: per forward [R] in {-1, 0, 1}
     grads: dict[str, torch.Tensor] = field(default_factory=dict)  # our parameter names
     weights_after: dict[str, torch.Tensor] = field(default_factory=dict)
@@ -221,7 +222,8 @@ def run_our_step(module, batch, draws: list[randomness.Draws], optimizer: torch.
         nerf_module.density, module_module.masked_depth_loss = density, masked
     names = [n for n in order if n in module.loss_weights and module.loss_weights[n] > 0]
     names = [n for n in names if n != "cfc" or module.coarse_fine_mask is not None]
-    for i, mask in enumerate(mask_calls):  # one forward of random rays: one call per masked loss, in `depth_pairs` order
+    # One forward of random rays: one call per masked loss, in `depth_pairs` order.
+    for i, mask in enumerate(mask_calls):
         record.masks.setdefault(names[i % len(names)], []).append(mask)
     record.losses = {k.removeprefix("train/loss_"): float(v) for k, v in logged.items() if k.startswith("train/loss_")}
     record.losses["total"] = float(logged["train/loss"])
@@ -252,7 +254,8 @@ def ternary_masks(release: StepRecord, ours: StepRecord):
     per forward: mask2 (the other depth is better: ours +1), then mask1 (the main depth is better: ours -1); only the
     forward of the random rays has rays to mask (the sparse sub-batch's masks are empty)."""
     for term, masks in release.masks.items():
-        theirs = torch.cat([m2.to(torch.int64) - m1.to(torch.int64) for m2, m1 in zip(masks[0::2], masks[1::2])])
+        pairs = zip(masks[0::2], masks[1::2], strict=True)
+        theirs = torch.cat([m2.to(torch.int64) - m1.to(torch.int64) for m2, m1 in pairs])
         mine = torch.cat(ours.masks[term]).to(torch.int64) if ours.masks.get(term) else torch.zeros(0)
         yield term, theirs, mine
 

@@ -51,7 +51,8 @@ def name_map(ours: torch.nn.Module) -> dict[str, str]:
             ]:
                 if not field.view_dependent and layer in ("feature_linear", "views_linears.0", "views_output_linear"):
                     continue
-                mapping[f"{release_prefix}.{layer}.{name}"] = f"{our_prefix}.{_layer(layer, field.view_dependent)}.{name}"
+                ours = f"{our_prefix}.{_layer(layer, field.view_dependent)}.{name}"
+                mapping[f"{release_prefix}.{layer}.{name}"] = ours
     missing = set(ours_params) - set(mapping.values())
     if missing:
         raise ValueError(f"our parameters without a release counterpart: {sorted(missing)}")
@@ -85,7 +86,8 @@ def copy_release_weights(release: torch.nn.Module, ours: torch.nn.Module) -> dic
         for release_name, our_name in mapping.items():
             value = release_to_ours(release_name, release_params[release_name].detach())
             if value.shape != ours_params[our_name].shape:
-                raise ValueError(f"{release_name} {tuple(value.shape)} vs {our_name} {tuple(ours_params[our_name].shape)}")
+                shape = tuple(ours_params[our_name].shape)
+                raise ValueError(f"{release_name} {tuple(value.shape)} vs {our_name} {shape}")
             ours_params[our_name].copy_(value)
     return mapping
 

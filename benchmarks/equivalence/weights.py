@@ -51,8 +51,8 @@ def name_map(ours: torch.nn.Module) -> dict[str, str]:
             ]:
                 if not field.view_dependent and layer in ("feature_linear", "views_linears.0", "views_output_linear"):
                     continue
-                ours = f"{our_prefix}.{_layer(layer, field.view_dependent)}.{name}"
-                mapping[f"{release_prefix}.{layer}.{name}"] = ours
+                target = f"{our_prefix}.{_layer(layer, field.view_dependent)}.{name}"
+                mapping[f"{release_prefix}.{layer}.{name}"] = target
     missing = set(ours_params) - set(mapping.values())
     if missing:
         raise ValueError(f"our parameters without a release counterpart: {sorted(missing)}")

@@ -53,13 +53,6 @@ def our_module(config: Path, scene_dir: Path, views: int, factor: int):
     return module
 
 
-def cast(batch: dict, dtype: torch.dtype) -> dict:
-    """The release's batch with every floating tensor (also in `common_data`) in `dtype`."""
-    def one(x):
-        return x.to(dtype) if isinstance(x, torch.Tensor) and x.is_floating_point() else x
-    return {k: cast(v, dtype) if isinstance(v, dict) else one(v) for k, v in batch.items()}
-
-
 def llff_step_layout(repo, work_dir: Path, scene_dir: Path, factor: int, config: dict, seed: int) -> Path:
     """The release's layout of an LLFF scene for the step check, with synthetic sparse depth for every frame
     (random pixels, depths uniform in disparity within the frame's bounds, as ../shared/tools/official_timing's
@@ -110,11 +103,10 @@ def step_check(args, repo, report: Report, views: int, trajectory: bool) -> None
     mapping = copy_release_weights(run.model, module)
     group = f"step {scene} {views}v {args.dtype}"
 
-    batch = run.data.get_next_batch(args.iter)  # the release caches its rays in float32
     if dtype != torch.float32:  # both models and the batch in float64 (the release's loss sums stay float32)
         torch.set_default_dtype(dtype)
         run.model.to(dtype), module.to(dtype)
-        batch = cast(batch, dtype)
+    batch = steps.release_batch(run, args.iter)
     ours_batch = steps.to_training_batch(batch)
     module.train_views = steps.train_views(batch)
     for name in ("points", "views", "cfc"):

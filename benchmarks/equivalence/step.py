@@ -38,6 +38,24 @@ MASK_LOSSES = {"points": "PointsAugmentationDepthLoss02", "views": "ViewsAugment
 MODELS = {"main coarse": "", "main fine": "", "points": "points_augmentation_", "views": "views_augmentation_"}
 
 
+def release_batch(run, iter_num: int) -> dict:
+    """The release's next batch (`get_next_batch`), made in float32 as its caches are, then in the default dtype
+    (float64 for the float64 check: every floating tensor, also in `common_data`)."""
+    dtype = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float32)
+    try:
+        batch = run.data.get_next_batch(iter_num)
+    finally:
+        torch.set_default_dtype(dtype)
+    return cast(batch, dtype) if dtype != torch.float32 else batch
+
+
+def cast(batch: dict, dtype: torch.dtype) -> dict:
+    def one(x):
+        return x.to(dtype) if isinstance(x, torch.Tensor) and x.is_floating_point() else x
+    return {k: cast(v, dtype) if isinstance(v, dict) else one(v) for k, v in batch.items()}
+
+
 def to_training_batch(batch: dict):
     """The release's batch (random rays where `indices_mask_nerf`, sparse-depth rays where
     `indices_mask_sparse_depth`) as our `TrainingBatch`, with the release's own rays."""

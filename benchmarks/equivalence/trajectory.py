@@ -33,7 +33,7 @@ def run_trajectory(run, module, num_steps: int, seed: int, group: str, loss_rtol
     ours_losses, release_losses = [], []
     flips: dict[str, list[int]] = {}  # masked loss -> per step, rays whose mask decision differs
     for it in range(num_steps):
-        batch = run.data.get_next_batch(it)
+        batch = steps.release_batch(run, it)
         if not bool(batch["indices_mask_sparse_depth"].any()):
             raise RuntimeError("the release returned no sparse-depth rays: use a larger sparse-depth pool")
         ours_batch = steps.to_training_batch(batch)

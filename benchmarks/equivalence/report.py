@@ -101,3 +101,29 @@ class Report:
         summary = f"{len(self.rows) - failed} of {len(self.rows)} rows pass"
         lines.append(summary + (f", {failed} FAIL" if failed else ""))
         return "\n".join(lines)
+
+
+def summary(table: str) -> str:
+    """Per group of a printed table (`Report.markdown`): rows, rows passed, the worst max absolute and relative
+    errors (relative errors of values near zero are large where the row's atol passes them)."""
+    groups: dict[str, list[tuple[float, float, bool]]] = {}
+    for line in table.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) < 7 or cells[0] in ("group", "---") or cells[6] not in ("PASS", "FAIL"):
+            continue
+        group = cells[0]
+        for word in (" outputs", " losses", " masks", " gradients", " Adam step", " optimiser", " trajectory"):
+            if word in group:
+                group = group[: group.index(word) + len(word)]
+        groups.setdefault(group, []).append((float(cells[3]), float(cells[4]), cells[6] == "PASS"))
+    lines = ["| group | rows | pass | worst max abs error | worst max rel error |", "|---|---:|---:|---:|---:|"]
+    for group, rows in groups.items():
+        worst_abs, worst_rel = max(r[0] for r in rows), max(r[1] for r in rows)
+        lines.append(f"| {group} | {len(rows)} | {sum(r[2] for r in rows)} | {worst_abs:.3g} | {worst_rel:.3g} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":  # python -m benchmarks.equivalence.report TABLE.md: the per-group summary
+    import sys
+
+    print(summary(open(sys.argv[1]).read()))

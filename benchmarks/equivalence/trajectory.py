@@ -17,25 +17,28 @@ from benchmarks.equivalence import step as steps
 from benchmarks.equivalence.report import Row, compare
 from benchmarks.equivalence.weights import copy_release_weights, release_to_ours
 
+FLOAT32_ULP = 2.0**-23  # the relative spacing of float32 numbers in [1, 2)
+
 
 def ulp_perturbed(module):
-    """A copy of `module` whose every weight is moved by one unit in the last place (random sign, seeded)."""
+    """A copy of `module` whose every weight w is moved to w (1 +- 2^-23) (random sign, seeded): one float32 unit in
+    the last place, in float64 too, where the release's float32-rounded inputs differ from ours by that much."""
     twin = copy.deepcopy(module)
     g = torch.Generator().manual_seed(1)
     with torch.no_grad():
         for p in twin.parameters():
             sign = torch.randint(0, 2, p.shape, generator=g).to(p.dtype) * 2 - 1
-            p.copy_(torch.nextafter(p, p + sign))
+            p.mul_(1 + sign * FLOAT32_ULP)
     return twin
 
 
 def run_trajectory(run, module, num_steps: int, seed: int, group: str, loss_rtol: float, weight_rtol: float,
                    log=print) -> list[Row]:
-    """The trajectory's rows. Besides ours vs the release, ours is run a second time from weights one ulp away, on
-    the same rays and draws: how far our own trajectory moves under rounding-sized changes is the floor below which
-    no comparison of two implementations can go (training is chaotic in the weights: ReLU gates, mask decisions and
-    Adam's first steps amplify them). A row passes when its error is within `loss_rtol` / `weight_rtol`, or within
-    3x that floor (the note says which)."""
+    """The trajectory's rows. Besides ours vs the release, ours is run a second time from weights one float32 ulp
+    away (`ulp_perturbed`), on the same rays and draws: how far our own trajectory moves under rounding-sized changes
+    is the floor below which no comparison of two implementations can go (training is chaotic in the weights: ReLU
+    gates, mask decisions and Adam's first steps amplify them). A row passes when its error is within `loss_rtol` /
+    `weight_rtol`, or within 3x that floor (the note says which)."""
     for name in steps.MASK_LOSSES.values():
         if name in run.loss_computer.losses:
             run.loss_computer.losses[name].loss_configs["iter_weights"] = {"0": 0.1}
@@ -80,7 +83,7 @@ def run_trajectory(run, module, num_steps: int, seed: int, group: str, loss_rtol
         floor = compare("", "", [row[term] for row in twin_losses], ours_series, atol=0, floor=1e-8)
         row = compare(f"{group} trajectory, {num_steps} steps", f"per-step L_{term}", ours_series,
                       release_series, rtol=loss_rtol, atol=0, floor=1e-8)
-        row.note = f"ours vs ours one ulp away: max rel {floor.max_rel:.3g}"
+        row.note = f"ours vs ours one float32 ulp away: max rel {floor.max_rel:.3g}"
         if not row.passed and row.max_rel <= 3 * floor.max_rel:
             row.passed, row.tolerance = True, f"3x the ulp floor ({loss_rtol:g} not met)"
         rows.append(row)
@@ -100,7 +103,7 @@ def run_trajectory(run, module, num_steps: int, seed: int, group: str, loss_rtol
               for name in ours_params}
     worst = max(errors, key=lambda e: e[1].max_rel)
     passed = all(e.passed or e.max_rel <= 3 * floors[name] for name, e in errors)
-    note = f"ours vs ours one ulp away: worst norm-rel {max(floors.values()):.3g}"
+    note = f"ours vs ours one float32 ulp away: worst norm-rel {max(floors.values()):.3g}"
     tolerance = f"norm-rel {weight_rtol:g}" if all(e.passed for _, e in errors) else \
         f"norm-rel {weight_rtol:g} or 3x the ulp floor"
     rows.append(Row(f"{group} trajectory, {num_steps} steps", f"final weights, worst parameter ({worst[0]})",

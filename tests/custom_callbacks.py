@@ -28,3 +28,17 @@ class LossLog(L.Callback):
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         with open(self.path, "a") as f:
             f.write(f"{trainer.global_step} {float(trainer.callback_metrics['train/loss']).hex()}\n")
+
+
+class SlowTest(L.Callback):
+    """Prints `frame N done` after each test frame and then waits `seconds`, so a test can signal a `test` run
+    between its frames."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+
+    def on_test_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
+        import time
+
+        print(f"frame {batch_idx} done", flush=True)
+        time.sleep(self.seconds)

@@ -116,6 +116,10 @@ def check_output_folder(images_dir: Path, output_dir: Path, overwrite: bool) -> 
         if not (output_dir / MARKER).is_file():
             raise DataError(f"{output_dir} was not written by process-data (it has no {MARKER}), so --overwrite does "
                             "not replace it; choose another --output, or empty it yourself")
+
+
+def check_writable_parent(output_dir: Path) -> None:
+    """DataError unless the folder that will hold `output_dir` can be created and written."""
     parent = output_dir.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -236,8 +240,9 @@ def process_photos(
                           ("max_num_features", max_num_features)):
         if value is not None and value < 1:
             raise DataError(f"{option} must be a positive integer, got {value}")
-    paths = find_photos(images_dir)
     check_output_folder(images_dir, output_dir, overwrite)
+    paths = find_photos(images_dir)
+    check_writable_parent(output_dir)
     if camera_model not in CAMERA_MODELS:
         raise DataError(f"camera model {camera_model!r} is not one of {', '.join(CAMERA_MODELS)}")
     try:

@@ -112,6 +112,23 @@ def test_sigterm_and_sigint_stop_fit_with_a_checkpoint_and_a_busy_folder_is_refu
     assert stderr.strip().splitlines()[-1].startswith(f"{ERROR}fit stopped by SIGINT at step {last_step(last)}; ")
 
 
+def test_a_lock_left_by_a_killed_process_is_taken_over(tmp_path):
+    """SIGKILL leaves the lock file but not the lock: the kernel releases it with the process."""
+    from simplenerf.errors import RunFolderError
+    from simplenerf.run_lock import LOCK_NAME, lock_run_folder
+
+    code = (f"from simplenerf.run_lock import lock_run_folder; lock_run_folder({str(tmp_path)!r}, 'holder'); "
+            "print('locked', flush=True); import time; time.sleep(60)")
+    holder = subprocess.Popen([sys.executable, "-c", code], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    assert holder.stdout.readline().strip() == "locked"
+    with pytest.raises(RunFolderError, match=rf"in use by pid {holder.pid} on .*: holder; wait for it"):
+        lock_run_folder(tmp_path, "second")
+    holder.kill()
+    holder.wait()
+    lock_run_folder(tmp_path, "second")  # taken over
+    assert json.loads((tmp_path / LOCK_NAME).read_text())["command"] == "second"
+
+
 def test_a_stopped_test_leaves_no_partial_results(resumed, tmp_path):
     """SIGTERM after the first of 3 test frames: exit status 143, earlier results kept, no test.partial."""
     run_dir = resumed / "run"

@@ -213,8 +213,7 @@ def test_counts_must_be_positive(option, value, expected, tmp_path):
                str(tmp_path / "run"), check=False)
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines()[0] == (
-        f"{ERROR}{option.removeprefix('-').removeprefix('-')}".replace("data.", "--data.", 1)
-        + f": {expected} (simplenerf.data.synthetic.SyntheticDataModule)")
+        f"{ERROR}{option}: {expected} (simplenerf.data.synthetic.SyntheticDataModule)")
     assert not (tmp_path / "run").exists()
 
 

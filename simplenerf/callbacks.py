@@ -9,9 +9,11 @@ import time
 
 import lightning as L
 import torch
+from jsonargparse.typing import PositiveInt
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, RichProgressBar
 
 from simplenerf.errors import SimpleNeRFError, TrainingDiverged
+from simplenerf.interrupts import Interrupted
 
 
 class RaysPerSecond(L.Callback):
@@ -55,12 +57,15 @@ class LearningRates(LearningRateMonitor):
 
 
 class Checkpointing(ModelCheckpoint):
-    """Checkpoints every N steps plus `last.ckpt`, which is also written if training stops on an error or Ctrl-C.
+    """Checkpoints every N steps plus `last.ckpt`, which is also written if training stops on an error, Ctrl-C or
+    SIGTERM (then at the end of the step, `simplenerf.interrupts`).
 
     Resume with `--ckpt_path last`. The folder is `<trainer.default_root_dir>/checkpoints` (linked by the CLI).
     """
 
-    def __init__(self, dirpath: str | None = None, every_n_train_steps: int = 10000, save_top_k: int = -1) -> None:
+    def __init__(
+        self, dirpath: str | None = None, every_n_train_steps: PositiveInt = 10000, save_top_k: int = -1
+    ) -> None:
         """
         Args:
             dirpath: where checkpoints go.
@@ -82,9 +87,16 @@ class Checkpointing(ModelCheckpoint):
         if self.dirpath is not None and trainer.global_step > 0 and self._last_global_step_saved != trainer.global_step:
             trainer.save_checkpoint(f"{self.dirpath}/last.ckpt")
 
+    def on_train_start(self, trainer, pl_module) -> None:
+        super().on_train_start(trainer, pl_module)
+        self._training = True
+
     def on_exception(self, trainer, pl_module, exception: BaseException) -> None:
-        # After a divergence the weights are not worth keeping: last.ckpt stays the last good checkpoint.
-        if isinstance(exception, TrainingDiverged):
+        # After a divergence the weights are not worth keeping: last.ckpt stays the last good checkpoint. Nor are
+        # they before training started (a restore may be half done), or after a second signal that stopped a step
+        # half way (`interrupts.Interrupted`); a first SIGTERM or SIGINT stops between steps (Lightning's
+        # SIGTERMException), where the state is whole and is saved.
+        if isinstance(exception, (TrainingDiverged, Interrupted)) or not getattr(self, "_training", False):
             return
         if trainer.state.fn == "fit" and self.dirpath is not None and trainer.global_step > 0:
             trainer.save_checkpoint(f"{self.dirpath}/last.ckpt")
@@ -143,7 +155,7 @@ class ProgressLog(L.Callback):
     pace so far. Printed by global rank 0.
     """
 
-    def __init__(self, every_n_steps: int | None = None, lines: bool | None = None) -> None:
+    def __init__(self, every_n_steps: PositiveInt | None = None, lines: bool | None = None) -> None:
         """
         Args:
             every_n_steps: print a training line every this many steps; null: about 100 lines per run

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -26,7 +27,10 @@ import yaml
 from jsonargparse import lazy_instance
 from lightning.pytorch import LightningDataModule
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
+from lightning.pytorch.utilities import rank_zero_only
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
+from simplenerf import interrupts
 from simplenerf.callbacks import (
     Checkpointing,
     LearningRates,
@@ -45,12 +49,21 @@ from simplenerf.checks import (
     resolve_checkpoint,
 )
 from simplenerf.console import PROG, HeldLogs, OneLineErrorParser, quiet_libraries
-from simplenerf.errors import DataError, SimpleNeRFError, TrainingDiverged
+from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged
 from simplenerf.evaluation.evaluator import Evaluator
 from simplenerf.evaluation.lpips import LPIPSWeightsNotFound
 from simplenerf.loggers import WandbLogger
 from simplenerf.memory import reuse_freed_memory
 from simplenerf.module import SimpleNeRF
+from simplenerf.resume import (
+    TEST_KEYS,
+    RunRecord,
+    describe_checkpoint,
+    recorded_settings,
+    run_settings,
+    setting_changes,
+)
+from simplenerf.run_lock import command_line, lock_run_folder
 from simplenerf.viz.renders import ValidationRenders
 from simplenerf.viz.video import TrainingVideo
 
@@ -109,6 +122,13 @@ class SimpleNeRFCLI(LightningCLI):
                 help="Start afresh in a run folder that already has checkpoints, deleting them. Without it, fit "
                 "refuses such a folder unless it resumes with --ckpt_path.",
             )
+        if subcommand in ("fit", "test"):
+            parser.add_argument(
+                "--allow_changes", type=list[str], default=[],
+                help="Data or model settings (keys as the refusal lists them, e.g. [data.init_args.rays_per_batch]) "
+                "that may differ from those the checkpoint was trained with. Without it, a resume (or a test) whose "
+                "settings differ from the run's stops. Trainer settings (max_steps, ...) may always change.",
+            )
         return parser
 
     def checkpoint_folder(self) -> Path:
@@ -152,9 +172,15 @@ class SimpleNeRFCLI(LightningCLI):
         folder = self.checkpoint_folder()
         given = config.get("ckpt_path")
         config["ckpt_path"] = resolve_checkpoint(subcommand, given, folder, self.model)
+        self.check_settings(subcommand, config)
         if subcommand == "fit" and given is None:
             prepare_fresh_fit(folder, bool(config.get("overwrite", False)))
         check_writable(self.output_folders(subcommand))
+        for callback in self.trainer.callbacks:  # e.g. an earlier test/ that could not be moved aside
+            if hasattr(callback, "check_outputs"):
+                callback.check_outputs(self.trainer, subcommand)
+        if rank_zero_only.rank == 0:  # one writer per run folder (under DDP, rank 0 for all)
+            lock_run_folder(Path(self.trainer.default_root_dir), command_line())
         self._held_logs.release()
         scene = getattr(self.datamodule, "scene", None)
         if subcommand == "test" and scene is not None and not scene.split.test:
@@ -170,6 +196,44 @@ class SimpleNeRFCLI(LightningCLI):
             super()._run_subcommand(subcommand)
         except TrainingDiverged as e:
             raise TrainingDiverged(f"{e}; {kept_checkpoints(folder)}") from None
+        except (KeyboardInterrupt, SystemExit) as e:  # Lightning's SIGTERMException and its sys.exit(1) on Ctrl-C
+            if interrupts.received is None:
+                raise
+            raise self.stopped(subcommand, folder, interrupts.received) from e
+
+    def stopped(self, subcommand: str, folder: Path, signum: int) -> Stopped:
+        """The one line of a run a signal stopped (`simplenerf.interrupts`)."""
+        how = f"{subcommand} stopped by {interrupts.name(signum)}"
+        if subcommand == "fit":
+            return Stopped(f"{how} at step {self.trainer.global_step}; {kept_checkpoints(folder)}", signum)
+        return Stopped(f"{how} before it finished: no results were written (earlier results are kept)", signum)
+
+    def check_settings(self, subcommand: str, config: Any) -> None:
+        """A resume continues the run it resumes: its data and model settings must be the checkpoint's (`resume`);
+        `test` must score the scene and train views the checkpoint trained on. Records the settings for `fit`."""
+        record = next((c for c in self.trainer.callbacks if isinstance(c, RunRecord)), None)
+        current = run_settings(self.config[subcommand], self.datamodule)
+        if record is not None and subcommand == "fit":
+            record.settings = current
+        ckpt = config.get("ckpt_path")
+        if subcommand not in ("fit", "test") or ckpt is None or not Path(str(ckpt)).is_file():
+            return
+        checkpoint = read_checkpoint(Path(ckpt))
+        recorded = recorded_settings(checkpoint)
+        if recorded is None:
+            return  # written before runs recorded their settings
+        allowed = tuple(config.get("allow_changes") or ())
+        changes = setting_changes(recorded, current, TEST_KEYS if subcommand == "test" else None, allowed)
+        if not changes:
+            return
+        what = "resume" if subcommand == "fit" else "test"
+        listed = "; ".join(changes)
+        keys = ", ".join(change.split(":")[0] for change in changes)
+        raise CheckpointError(
+            f"this {what} differs from the run of checkpoint {describe_checkpoint(ckpt, checkpoint)} in {listed}; "
+            f"use the run's settings (its config.yaml), start a new run in another folder, or accept the change with "
+            f"--allow_changes [{keys}]"
+        )
 
 
 def trainer_defaults() -> dict:
@@ -181,7 +245,7 @@ def trainer_defaults() -> dict:
         "max_steps": 100000,
         "logger": lazy_instance(WandbLogger),
         "callbacks": [*([TrainingProgressBar()] if terminal else []), RaysPerSecond(), LearningRates(),
-                      StopOnNonFiniteLoss()],
+                      StopOnNonFiniteLoss(), RunRecord()],
         "enable_progress_bar": terminal,
         "check_val_every_n_epoch": None,
         "val_check_interval": 5000,
@@ -190,7 +254,7 @@ def trainer_defaults() -> dict:
 
 
 # The arguments of a subcommand itself, not of the model, data or trainer: a fit saves them in <run>/config.yaml.
-SUBCOMMAND_KEYS = ("ckpt_path", "weights_only", "overwrite")
+SUBCOMMAND_KEYS = ("ckpt_path", "weights_only", "overwrite", "allow_changes")
 
 
 def without_subcommand_keys(args: list[str], drop: tuple[str, ...]) -> list[str]:
@@ -209,6 +273,27 @@ def without_subcommand_keys(args: list[str], drop: tuple[str, ...]) -> list[str]
             out.append(args[i])
         i += 1
     return out
+
+
+def check_config_files(args: list[str]) -> None:
+    """Each `--config FILE` given must be readable YAML: else one line naming the file, line and column (the
+    parser itself reads the text and would lose the file's name)."""
+    paths = [args[i + 1] for i, arg in enumerate(args[:-1]) if arg == "--config"]
+    paths += [arg.split("=", 1)[1] for arg in args if arg.startswith("--config=")]
+    for path in paths:
+        if not Path(path).is_file():
+            continue
+        try:
+            yaml.safe_load(Path(path).read_text())
+        except UnicodeDecodeError:
+            raise SimpleNeRFError(f"config file {path} is not text (UTF-8 YAML)") from None
+        except OSError as e:
+            raise SimpleNeRFError(f"cannot read config file {path}: {e.strerror or e}") from None
+        except yaml.YAMLError as e:
+            mark = getattr(e, "problem_mark", None)
+            where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else "somewhere"
+            what = " ".join(str(part) for part in (getattr(e, "context", None), getattr(e, "problem", None)) if part)
+            raise SimpleNeRFError(f"config file {path}: YAML syntax error at {where}: {what or e}") from None
 
 
 def _config_without(path: str, drop: tuple[str, ...]) -> str:
@@ -234,10 +319,11 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
     """
     reuse_freed_memory()
     given = list(sys.argv[1:] if args is None else args)
+    check_config_files(given)
     if not run:  # a tool: none of a subcommand's arguments apply
         drop = SUBCOMMAND_KEYS
     else:
-        drop = () if given[:1] == ["fit"] else ("overwrite",)
+        drop = {"fit": (), "test": ("overwrite",)}.get(given[0] if given else "", ("overwrite", "allow_changes"))
     if drop:  # (otherwise args stay as given: Lightning warns when args and sys.argv both hold arguments)
         readable = without_subcommand_keys(given, drop)
         args = readable if readable != given else args
@@ -275,13 +361,21 @@ def load_for_tool(
 
 def run_tool(main_function: Callable[[], None], name: str) -> None:
     """Runs an entry point's main; bad input ends with one `<name>: error:` line and exit status 2 (a diverged
-    training: 1), as in `main`."""
+    training: 1), as in `main`; a SIGINT or SIGTERM with one line and 128 + the signal's number
+    (`simplenerf.interrupts`; docs/running.md)."""
     quiet_libraries()
+    interrupts.install()
     try:
         main_function()
-    except (SimpleNeRFError, LPIPSWeightsNotFound) as e:
+    except (SimpleNeRFError, LPIPSWeightsNotFound, MisconfigurationException) as e:
         print(f"{name}: error: {e}", file=sys.stderr)
         sys.exit(getattr(e, "exit_status", 2))
+    except (KeyboardInterrupt, SystemExit) as e:
+        if interrupts.received is None and not isinstance(e, KeyboardInterrupt):
+            raise
+        signum = interrupts.received or getattr(e, "signum", None) or signal.SIGINT
+        print(f"{name}: error: stopped by {interrupts.name(signum)} before it finished", file=sys.stderr)
+        sys.exit(interrupts.exit_status(signum))
 
 
 def split_overrides(argv: list[str]) -> tuple[list[str], list[str]]:

@@ -17,9 +17,58 @@ from lightning.pytorch.cli import LightningArgumentParser
 PROG = "simplenerf"
 
 
+TYPE_WORDS = {
+    "PositiveInt": "a positive integer", "NonNegativeInt": "an integer >= 0", "PositiveFloat": "a positive number",
+    "NonNegativeFloat": "a number >= 0", "int": "an integer", "float": "a number", "bool": "true or false",
+    "str": "a string",
+}
+
+
+def _cause(detail: str, given: str | None) -> str:
+    """A jsonargparse type error as `expected <type>, got <value>` (the key is added by the caller)."""
+    if match := re.match(r"Not of type (\w+): (.*?) does not conform to restriction", detail):
+        return f"expected {TYPE_WORDS.get(match.group(1), match.group(1))}, got {match.group(2)}"
+    if match := re.match(r"Not of type (\w+): .*", detail):
+        if quoted := re.search(r": ('.*')$", detail):
+            value = quoted.group(1)
+        else:
+            value = given if given is not None and not given.startswith(("{", "Namespace(")) else "another value"
+        return f"expected {TYPE_WORDS.get(match.group(1), match.group(1))}, got {value}"
+    if match := re.match(r"Expected a <class '(\w+)'>\.? Got value: (.*)$", detail):
+        return f"expected {TYPE_WORDS.get(match.group(1), match.group(1))}, got {match.group(2)}"
+    return detail
+
+
+def _nested_key(lines: list[str], start: int) -> tuple[list[str], str | None, str | None]:
+    """Below a `Problem with given class_path` line: the keys of the nested `Parser key "k":` lines, the innermost
+    cause and the value given there."""
+    keys: list[str] = []
+    cause = given = None
+    for line in lines[start:]:
+        if match := re.match(r'Parser key "([^"]+)":\s*(.*)$', line):
+            keys.append(match.group(1))
+            if match.group(2):
+                cause = match.group(2)
+                break
+            continue
+        if not keys:
+            break
+        if line.startswith(("Does not validate against any of", "Subtypes:", "Errors:", "Given value type:")):
+            continue
+        cause = line
+        break
+    if keys:
+        for line in lines[start:]:
+            if line.startswith("Given value: ") and not line.startswith("Given value: NestedArg"):
+                given = line.removeprefix("Given value: ")
+                break
+    return keys, cause, given
+
+
 def parser_error_line(message: str, parser: Any) -> tuple[str, str]:
     """One line for a parser error message of jsonargparse (often many lines of nested causes), and a hint: the
-    closest valid name when an option or a class name is mistyped, else where the options are listed."""
+    closest valid name when an option or a class name is mistyped, else where the options are listed. A wrong value
+    keeps its cause: the full key, the expected type and the given value; a YAML error its line and column."""
     lines = [line.strip().lstrip("- ").strip() for line in message.strip().splitlines()]
     lines = [line for line in lines if line]
     key, detail = None, lines[0] if lines else message
@@ -29,12 +78,21 @@ def parser_error_line(message: str, parser: Any) -> tuple[str, str]:
     for i, line in enumerate(lines):
         if match := re.match(r"Problem with given class_path '([^']+)':\s*(.*)$", line):
             class_path, cause = match.group(1), match.group(2) or (lines[i + 1] if i + 1 < len(lines) else "")
-            detail = f"class_path {class_path}: {cause}"
+            nested, inner, given = _nested_key(lines, i + 1)
+            if nested and inner:  # a wrong value of one of the class's arguments
+                key = ".".join([key, "init_args", *nested]) if key else ".".join(nested)
+                detail = f"{_cause(inner, given)} ({class_path})"
+            else:
+                detail = f"class_path {class_path}: {cause}"
             suggestion = _class_suggestion(class_path, cause)
             break
     else:
         if not detail and len(lines) > 1:
             detail = lines[1]
+        given = next((line.removeprefix("Given value: ") for line in lines if line.startswith("Given value: ")), None)
+        detail = _cause(detail, given)
+    if detail.startswith("Problems parsing config") and len(lines) > 1:  # YAML: keep where and what
+        detail = " ".join(lines).replace('in "<unicode string>", ', "")
     if match := re.match(r"unrecognized arguments: (.*)$", detail):
         options = [s for action in parser._actions for s in action.option_strings]
         unknown = [token.split("=")[0] for token in match.group(1).split() if token.startswith("--")]

@@ -24,3 +24,12 @@ class TrainingDiverged(SimpleNeRFError):
     """The training loss became NaN or infinite; the checkpoints written before it are kept."""
 
     exit_status = 1
+
+
+class Stopped(SimpleNeRFError):
+    """A signal (SIGINT, SIGTERM) stopped the command before it finished; exit status 128 + the signal's number."""
+
+    def __init__(self, message: str, signum: int) -> None:
+        super().__init__(message)
+        self.signum = signum
+        self.exit_status = 128 + int(signum)

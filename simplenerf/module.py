@@ -12,6 +12,7 @@ from typing import Literal
 
 import lightning as L
 import torch
+from jsonargparse.typing import PositiveInt
 from lightning.pytorch.cli import LRSchedulerCallable, OptimizerCallable
 from torch import nn
 
@@ -81,9 +82,9 @@ class SimpleNeRF(L.LightningModule):
         optimizer: OptimizerCallable | None = None,
         lr_scheduler: LRSchedulerCallable | None = None,
         group_lr: dict[str, float] | None = None,
-        chunk: int = 8192,
+        chunk: PositiveInt = 8192,
         backward_per_part: bool = False,
-        rays_per_backward: int | None = None,
+        rays_per_backward: PositiveInt | None = None,
     ) -> None:
         """
         Args:

@@ -1,4 +1,5 @@
-"""A callback that breaks training on purpose (named by class_path in a test's YAML), for the NaN-loss test."""
+"""Callbacks the tests name by class_path in their YAML: one breaks training on purpose (the NaN-loss test), one
+logs every step's loss (the resume test)."""
 
 from __future__ import annotations
 
@@ -15,3 +16,29 @@ class PoisonLossAt(L.Callback):
     def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
         if trainer.global_step == self.step:
             pl_module.loss_weights["color"] = float("nan")
+
+
+class LossLog(L.Callback):
+    """Appends `step loss` (the step's total training loss, full precision) to the file `path` after every training
+    step, for comparing a resumed run's losses with a straight run's."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        with open(self.path, "a") as f:
+            f.write(f"{trainer.global_step} {float(trainer.callback_metrics['train/loss']).hex()}\n")
+
+
+class SlowTest(L.Callback):
+    """Prints `frame N done` after each test frame and then waits `seconds`, so a test can signal a `test` run
+    between its frames."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+
+    def on_test_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
+        import time
+
+        print(f"frame {batch_idx} done", flush=True)
+        time.sleep(self.seconds)

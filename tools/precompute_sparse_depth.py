@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import sys
 
-from simplenerf.cli import make_cli
+from simplenerf.cli import make_cli, run_tool
 
 
 def main() -> None:
@@ -22,4 +22,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main, "precompute_sparse_depth")  # bad input or Ctrl-C: one line, no traceback

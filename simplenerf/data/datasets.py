@@ -41,6 +41,8 @@ def shuffled_pool(size: int, batch: int, generator: torch.Generator) -> Iterator
     smaller than a batch)."""
     if size < 1:
         raise ValueError("the pool is empty")
+    if batch < 1:
+        raise ValueError(f"a batch needs at least one entry, got {batch}")
     buffer = torch.empty(0, dtype=torch.long)
     while True:
         while len(buffer) < batch:
@@ -66,12 +68,32 @@ class RandomRays(IterableDataset):
         seed: int = 0,
         sparse: SparseDepthPool | None = None,
         sparse_rays_per_batch: int = 0,
+        start_batch: int = 0,
     ) -> None:
+        """
+        Args:
+            views: the training views.
+            rays_per_batch: random rays per batch (>= 1).
+            near: NDC near plane of the rays.
+            seed: seed of the order (each rank and worker adds its own offset).
+            sparse: the sparse-depth pool, or None.
+            sparse_rays_per_batch: rays per batch from `sparse` (>= 0; 0: none).
+            start_batch: batches already drawn by the run (a resume): the stream continues after them, in the order
+                the run would have drawn them.
+        """
         num_pixels = len(views) * views.height * views.width
+        checks = (("rays_per_batch", rays_per_batch, 1), ("sparse_rays_per_batch", sparse_rays_per_batch, 0),
+                  ("start_batch", start_batch, 0))
+        for option, value, least in checks:
+            if not isinstance(value, int) or value < least:
+                raise ValueError(f"{option} must be an integer >= {least}, got {value!r}")
         if rays_per_batch > num_pixels:
             raise ValueError(f"rays_per_batch={rays_per_batch} exceeds the {num_pixels} training pixels")
         self.views, self.rays_per_batch, self.near, self.seed = views, rays_per_batch, near, seed
         self.sparse, self.sparse_rays_per_batch = sparse, sparse_rays_per_batch if sparse is not None else 0
+        if self.sparse_rays_per_batch and len(sparse) < 1:
+            raise ValueError("the sparse-depth pool is empty")
+        self.start_batch = start_batch
 
     def sparse_batch(self, index: torch.Tensor) -> SparseDepthBatch:
         """The sparse-depth rays of pool entries `index` [R]."""
@@ -84,22 +106,32 @@ class RandomRays(IterableDataset):
         return SparseDepthBatch(self.views.rays(view, uv, self.near), rgb, view, uv, self.sparse.depth[index],
                                 self.sparse.weight[index])
 
-    def __iter__(self) -> Iterator[TrainingBatch]:
-        worker = get_worker_info()
-        generator = torch.Generator().manual_seed(self.seed + 1000 * _rank() + (worker.id if worker else 0))
+    def _indices(self, generator: torch.Generator) -> Iterator[tuple[torch.Tensor, torch.Tensor | None]]:
+        """Endless (pixel indices [R] into the views' pixels, sparse pool indices [R_s] or None) per batch."""
         sparse = shuffled_pool(len(self.sparse), self.sparse_rays_per_batch, generator) if self.sparse_rays_per_batch \
             else None
-        h, w = self.views.height, self.views.width
-        num_pixels = len(self.views) * h * w
+        num_pixels = len(self.views) * self.views.height * self.views.width
         while True:
             order = torch.randperm(num_pixels, generator=generator)
             for start in range(0, num_pixels - self.rays_per_batch + 1, self.rays_per_batch):
-                index = order[start : start + self.rays_per_batch]
-                view, pixel = index // (h * w), index % (h * w)
-                uv = torch.stack([pixel % w, pixel // w], dim=-1)
-                rgb = self.views.images[view, uv[:, 1], uv[:, 0]]
-                random = RayBatch(self.views.rays(view, uv, self.near), rgb, view, uv)
-                yield TrainingBatch(random, None if sparse is None else self.sparse_batch(next(sparse)))
+                yield order[start : start + self.rays_per_batch], None if sparse is None else next(sparse)
+
+    def __iter__(self) -> Iterator[TrainingBatch]:
+        worker = get_worker_info()
+        generator = torch.Generator().manual_seed(self.seed + 1000 * _rank() + (worker.id if worker else 0))
+        indices = self._indices(generator)
+        # A resume continues the order: the data loader takes batches from its workers in turn, so worker w drew
+        # every num_workers-th of the batches drawn so far, starting with the w-th.
+        workers, index = (worker.num_workers, worker.id) if worker else (1, 0)
+        for _ in range(max(0, self.start_batch - index + workers - 1) // workers):
+            next(indices)
+        h, w = self.views.height, self.views.width
+        for pixels, sparse in indices:
+            view, pixel = pixels // (h * w), pixels % (h * w)
+            uv = torch.stack([pixel % w, pixel // w], dim=-1)
+            rgb = self.views.images[view, uv[:, 1], uv[:, 0]]
+            random = RayBatch(self.views.rays(view, uv, self.near), rgb, view, uv)
+            yield TrainingBatch(random, None if sparse is None else self.sparse_batch(sparse))
 
 
 class Frames(Dataset):

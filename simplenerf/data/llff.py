@@ -20,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+from jsonargparse.typing import NonNegativeInt, PositiveInt
 
 from simplenerf.data.scene import Scene, SceneDataModule, Split, explicit_split
 from simplenerf.errors import DataError
@@ -241,7 +242,7 @@ def subset(views: Views, indices: list[int]) -> Views:
 class LLFFDataModule(SceneDataModule):
     """An LLFF-layout scene (`poses_bounds.npy`, `images_N/`); rays, splits and sparse depth: `SceneDataModule`."""
 
-    def __init__(self, scene_dir: str, factor: int = 4, test_every: int = 8, **kwargs) -> None:
+    def __init__(self, scene_dir: str, factor: PositiveInt = 4, test_every: NonNegativeInt = 8, **kwargs) -> None:
         """
         Args:
             scene_dir: the scene folder, e.g. data/nerf_llff_data/fern (holds poses_bounds.npy and images_N/).

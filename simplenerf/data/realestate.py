@@ -19,6 +19,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from jsonargparse.typing import NonNegativeInt, PositiveInt
 
 from simplenerf.data.llff import (
     IMAGE_SUFFIXES,
@@ -178,7 +179,8 @@ class RealEstateDataModule(SceneDataModule):
     video_trajectory = "recorded"  # tools/render_video.py follows the clip's own camera path (LLFF: a spiral)
 
     def __init__(
-        self, scene_dir: str, clip_start: int = 0, clip_length: int = 50, split_views: int = 2, **kwargs
+        self, scene_dir: str, clip_start: NonNegativeInt = 0, clip_length: PositiveInt = 50,
+        split_views: PositiveInt = 2, **kwargs,
     ) -> None:
         """
         Args:

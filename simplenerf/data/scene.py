@@ -14,6 +14,7 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 import torch
+from jsonargparse.typing import NonNegativeInt, PositiveInt
 from torch.utils.data import DataLoader
 
 from simplenerf.data.datasets import Frames, RandomRays, SparseDepthPool
@@ -61,13 +62,13 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
 
     def __init__(
         self,
-        n_views: int | None = 2,
-        train_frames: list[int] | None = None,
-        rays_per_batch: int = 2048,
+        n_views: PositiveInt | None = 2,
+        train_frames: list[NonNegativeInt] | None = None,
+        rays_per_batch: PositiveInt = 2048,
         near: float = 1.0,
         seed: int = 0,
-        num_workers: int = 0,
-        sparse_rays_per_batch: int = 0,
+        num_workers: NonNegativeInt = 0,
+        sparse_rays_per_batch: NonNegativeInt = 0,
         sparse_depth_cache: str = "data/cache/sparse_depth",
         sparse_depth_weighting: bool = False,
         reference_depth_dir: str | None = None,
@@ -148,8 +149,12 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
         return self.scene.views.subset(self.scene.split.train)
 
     def train_dataloader(self) -> DataLoader:
+        # A resumed fit continues the ray order after the batches its steps have drawn (one per optimiser step and
+        # gradient-accumulation batch), instead of replaying it from the first.
+        trainer = self.trainer
+        drawn = trainer.global_step * trainer.accumulate_grad_batches if trainer is not None else 0
         rays = RandomRays(self.train_views, self.rays_per_batch, self.near, self.seed, self.sparse_depth,
-                          self.sparse_rays_per_batch)
+                          self.sparse_rays_per_batch, start_batch=drawn)
         return DataLoader(rays, batch_size=None, num_workers=self.num_workers)
 
     def _frames(self, indices: list[int]) -> DataLoader:

@@ -63,6 +63,7 @@ class AttemptOutcome:
     registered: int
     points: int
     seconds: float
+    groups: list[int] = field(default_factory=list)  # registered photos of every model, largest first (>1: disjoint)
 
 
 @dataclass
@@ -176,11 +177,11 @@ def run_sfm(
         for attempt in attempts:
             start = time.perf_counter()
             log(f"sfm: incremental mapping, {attempt.name} thresholds ...")
-            reconstruction = _map(database_path, image_dir, work_dir / f"sparse_{len(outcomes)}", attempt, len(names),
-                                  seed, num_threads)
+            reconstruction, groups = _map(database_path, image_dir, work_dir / f"sparse_{len(outcomes)}", attempt,
+                                          len(names), seed, num_threads)
             registered = reconstruction.num_reg_images() if reconstruction is not None else 0
             points = reconstruction.num_points3D() if reconstruction is not None else 0
-            outcomes.append(AttemptOutcome(attempt.name, registered, points, time.perf_counter() - start))
+            outcomes.append(AttemptOutcome(attempt.name, registered, points, time.perf_counter() - start, groups))
             log(f"sfm: {attempt.name}: {registered} of {len(names)} photos registered, {points} points "
                 f"({outcomes[-1].seconds:.0f} s)")
             if reconstruction is not None and (best is None or (registered, points) > (best.num_reg_images(),
@@ -290,8 +291,9 @@ def _map(
     num_images: int,
     seed: int,
     num_threads: int,
-) -> pycolmap.Reconstruction | None:
-    """One run of the incremental mapper; its largest model (most registered images), or None."""
+) -> tuple[pycolmap.Reconstruction | None, list[int]]:
+    """One run of the incremental mapper: its largest model (most registered images), or None, and the registered
+    photos of each model it made, largest first (more than one: the photos fall into disjoint groups)."""
     options = pycolmap.IncrementalPipelineOptions()
     options.num_threads = num_threads
     options.random_seed = seed
@@ -318,5 +320,6 @@ def _map(
                 next_image_callback=lambda: registered_more(1),
             )
     if not models:
-        return None
-    return max(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
+        return None, []
+    groups = sorted((r.num_reg_images() for r in models.values()), reverse=True)
+    return max(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D())), groups

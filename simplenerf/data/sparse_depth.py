@@ -28,6 +28,7 @@ import inspect
 import json
 import logging
 import os
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -213,6 +214,16 @@ def load_or_compute_sparse_depth(
         logger.info("sparse depth: loaded %s", npz_path)
         return cached
     views = compute_sparse_depth(images_u8, intrinsics_np, c2w_np, **options)
+    try:
+        _write_cache(cache_dir, npz_path, json_path, identity, views)
+    except OSError as e:  # a read-only or full cache folder: the result is still good, only not kept
+        print(f"sparse depth: cannot write the cache {npz_path} ({e.strerror or e}); using the SfM result in memory "
+              "(it is computed again next time)", file=sys.stderr, flush=True)
+    return views
+
+
+def _write_cache(cache_dir: Path, npz_path: Path, json_path: Path, identity: dict[str, Any],
+                 views: list[SparseDepth]) -> None:
     cache_dir.mkdir(parents=True, exist_ok=True)
     arrays = {
         "counts": np.array([len(v) for v in views], dtype=np.int64),
@@ -236,7 +247,6 @@ def load_or_compute_sparse_depth(
     _atomic_write(npz_path, lambda f: np.savez(f, **arrays))
     _atomic_write(json_path, lambda f: f.write(json.dumps(summary, indent=2).encode()))
     logger.info("sparse depth: wrote %s", npz_path)
-    return views
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -45,6 +45,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from jsonargparse.typing import PositiveInt
 
 from simplenerf.data.llff import LLFFDataModule
 from simplenerf.data.synthetic_objects import _objects
@@ -353,8 +354,8 @@ class SyntheticDataModule(LLFFDataModule):
     """
 
     def __init__(
-        self, root: str = "data/synthetic", height: int = 96, width: int = 128, n_frames: int = 20,
-        scene_seed: int = 0, kind: str = "planes", **kwargs,
+        self, root: str = "data/synthetic", height: PositiveInt = 96, width: PositiveInt = 128,
+        n_frames: PositiveInt = 20, scene_seed: int = 0, kind: str = "planes", **kwargs,
     ) -> None:
         """
         Args:

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from simplenerf.data.scene import Scene
-from simplenerf.errors import DataError
+from simplenerf.errors import DataError, RunFolderError
 from simplenerf.evaluation.lpips import LPIPS
 from simplenerf.evaluation.metrics import MASKED_METRIC_NAMES, METRIC_NAMES, PSNR_CAP, frame_scores
 from simplenerf.evaluation.visibility import MIN_VIEWS, scene_visibility_masks
@@ -193,12 +193,38 @@ class Evaluator(L.Callback):
         if stage == "test" and self.use_lpips and self.lpips_net is None:
             self.lpips_net = LPIPS.from_weights(self.lpips_weights, allow_download=True)
 
+    def final_folder(self, trainer: L.Trainer, stage: str) -> Path:
+        return Path(self.output_dir or os.path.join(trainer.default_root_dir, stage))
+
+    def check_outputs(self, trainer: L.Trainer, stage: str) -> None:
+        """Before anything is rendered: earlier results in the output folder must be movable aside at the end (a
+        rename there and back), or the render would be lost; RunFolderError naming the folder otherwise."""
+        if stage not in ("test", "predict") or not trainer.is_global_zero:
+            return
+        final = self.final_folder(trainer, stage)
+        if not final.exists():
+            return
+        probe = final.with_name(f".{final.name}.move-check-{os.getpid()}")
+        try:
+            final.rename(probe)
+        except OSError as e:
+            raise RunFolderError(
+                f"the earlier results in {final} cannot be moved aside for the new ones ({e.strerror or e}); move "
+                "them yourself, or choose another --evaluation.output_dir"
+            ) from None
+        probe.rename(final)
+
+    def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
+        # A stopped test or predict (an error, a signal) leaves no partial results behind.
+        if self._partial is not None and trainer.is_global_zero:
+            shutil.rmtree(self._partial, ignore_errors=True)
+
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         if stage not in ("test", "predict"):
             return
         self.check_inputs(stage)
         name = "test" if stage == "test" else "predict"
-        self._final = Path(self.output_dir or os.path.join(trainer.default_root_dir, name))
+        self._final = self.final_folder(trainer, name)
         self._partial = self._final.with_name(self._final.name + ".partial")
         if trainer.is_global_zero:
             shutil.rmtree(self._partial, ignore_errors=True)

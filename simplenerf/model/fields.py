@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+from jsonargparse.typing import NonNegativeInt, PositiveInt
 from torch import nn
 
 from simplenerf.model.encodings import band_slice, encoded_dim
@@ -58,15 +59,15 @@ class RadianceField(Field):
 
     def __init__(
         self,
-        point_bands: int = 10,
-        view_bands: int = 4,
+        point_bands: NonNegativeInt = 10,
+        view_bands: NonNegativeInt = 4,
         density_bands: int | None = None,
         residual_bands_to_color: bool = False,
         view_dependent: bool = True,
-        num_layers: int = 8,
-        width: int = 256,
+        num_layers: PositiveInt = 8,
+        width: PositiveInt = 256,
         skip_layer: int | None = 5,
-        color_width: int = 128,
+        color_width: PositiveInt = 128,
     ) -> None:
         """
         Args:

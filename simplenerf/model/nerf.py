@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+from jsonargparse.typing import NonNegativeInt, PositiveInt
 from torch import nn
 
 from simplenerf.geometry.rays import RayBundle, ndc_to_metric_t
@@ -41,11 +42,11 @@ class NeRF(nn.Module):
         self,
         coarse: Field | None = None,
         fine: Field | None = None,
-        num_coarse: int = 64,
-        num_fine: int = 128,
+        num_coarse: PositiveInt = 64,
+        num_fine: PositiveInt = 128,
         density_noise_std: float = 1.0,
         near: float = 1.0,
-        field_chunk: int = 0,
+        field_chunk: NonNegativeInt = 0,
     ) -> None:
         """
         Args:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import lightning as L
 import numpy as np
 import torch
+from jsonargparse.typing import PositiveInt
 
 from simplenerf.evaluation.metrics import psnr
 from simplenerf.method.reliability import mask_fractions
@@ -58,7 +59,8 @@ class ValidationRenders(L.Callback):
     """
 
     def __init__(
-        self, save_to_disk: bool = True, log_images: bool = True, every_n_validations: int = 1, max_error: float = 0.5
+        self, save_to_disk: bool = True, log_images: bool = True, every_n_validations: PositiveInt = 1,
+        max_error: float = 0.5,
     ) -> None:
         """
         Args:

@@ -18,6 +18,7 @@ import av
 import lightning as L
 import numpy as np
 import torch
+from jsonargparse.typing import NonNegativeInt, PositiveInt
 from tqdm import tqdm
 
 from simplenerf.geometry.rays import RayBundle, make_rays, pixel_grid
@@ -205,8 +206,8 @@ class TrainingVideo(L.Callback):
     tools/render_video.py) in `<trainer.default_root_dir>/video_<path>.mp4`, logged to every logger that takes
     videos (W&B: the media panel `video/<path>`). Rendered by global rank 0; off unless `frames` > 0."""
 
-    def __init__(self, frames: int = 0, rotations: float = 2, factor_down: int = 1, fps: float = 30,
-                 trajectory: TrajectoryKind | None = None) -> None:
+    def __init__(self, frames: NonNegativeInt = 0, rotations: float = 2, factor_down: PositiveInt = 1,
+                 fps: float = 30, trajectory: TrajectoryKind | None = None) -> None:
         """
         Args:
             frames: frames of the spiral (the recorded path has its own); 0: no video.

@@ -15,3 +15,46 @@ def test_pool_smaller_than_a_batch_spans_passes():
     batch = next(shuffled_pool(3, 7, torch.Generator().manual_seed(1)))
     assert len(batch) == 7
     assert sorted(batch[:3].tolist()) == [0, 1, 2] and sorted(batch[3:6].tolist()) == [0, 1, 2]
+
+
+def test_random_rays_continue_after_the_batches_already_drawn(synthetic_scene, monkeypatch):
+    """A resumed run's stream (`start_batch`) is the straight stream from that batch on: random and sparse rays, in
+    the main process and split over data-loader workers (which take batches in turn)."""
+    import itertools
+    from types import SimpleNamespace
+
+    from simplenerf.data import datasets
+    from simplenerf.data.datasets import RandomRays, SparseDepthPool
+    from simplenerf.data.llff import load_llff_scene, subset
+
+    scene = load_llff_scene(synthetic_scene, factor=1, n_views=2)
+    views = subset(scene.views, scene.split.train)
+    pool = SparseDepthPool(view=torch.tensor([0, 1, 0, 1, 1]), uv=torch.rand(5, 2) * 40, depth=torch.rand(5) + 1,
+                           weight=torch.ones(5))
+
+    def stream(start: int, worker=None) -> list:
+        monkeypatch.setattr(datasets, "get_worker_info", lambda: worker)
+        rays = RandomRays(views, 1000, near=1.0, seed=0, sparse=pool, sparse_rays_per_batch=3, start_batch=start)
+        return [(b.random.uv, b.sparse.uv) for b in itertools.islice(iter(rays), 8)]
+
+    def same(a: list, b: list) -> bool:
+        return all(torch.equal(x, y) and torch.equal(u, v) for (x, u), (y, v) in zip(a, b, strict=True))
+
+    straight = stream(0)
+    assert same(stream(5)[:3], straight[5:8])  # 6144 pixels: batch 6 starts the second permutation
+    # Two workers: worker 1 drew batches 1, 3, 5, ... of its own stream; after 5 batches it continues with its third.
+    worker1 = SimpleNamespace(id=1, num_workers=2)
+    assert same(stream(5, worker1)[:2], stream(0, worker1)[2:4])
+
+
+def test_random_rays_refuse_counts_that_would_spin(synthetic_scene):
+    import pytest
+
+    from simplenerf.data.datasets import RandomRays
+    from simplenerf.data.llff import load_llff_scene, subset
+
+    scene = load_llff_scene(synthetic_scene, factor=1, n_views=2)
+    views = subset(scene.views, scene.split.train)
+    for rays_per_batch in (-64, 0):
+        with pytest.raises(ValueError, match="rays_per_batch must be an integer >= 1"):
+            RandomRays(views, rays_per_batch, near=1.0)

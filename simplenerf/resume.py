@@ -1,0 +1,160 @@
+"""A resumed run is a continuation of the run (docs/running.md): `RunRecord` keeps in every checkpoint what a resume
+needs besides Lightning's own state (weights, optimiser, LR schedule, loop counters):
+
+- the global random state (torch, numpy, Python; CUDA where present), as it was after the last training step, set
+  again before the first step after the resume (Lightning's `_collect_rng_states` / `_set_rng_states`);
+- the run's data and model settings (`run_settings`): a resume whose settings differ from the run's stops with one
+  line listing the differences (`setting_changes`), unless each is allowed with `--allow_changes`; `test` checks
+  that it scores the scene (and train views) the checkpoint trained on.
+
+The random-ray order continues too: `data.datasets.RandomRays` skips the batches the run has already drawn
+(`SceneDataModule.train_dataloader` reads the resumed step). The loss-weight schedule is a function of the step
+(`callbacks.LossWeightSchedule`), so it continues by itself.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+from lightning.fabric.utilities.seed import _collect_rng_states, _set_rng_states
+
+RECORD_KEY = "simplenerf_run"
+
+# Data settings that do not change what a run trains on: where files are found or cached (the scene itself is
+# compared as `scene`, resolved), worker processes, and evaluation-only inputs.
+IGNORED_DATA = ("root", "scene_dir", "sparse_depth_cache", "num_workers", "reference_depth_dir")
+# Model settings that change memory use, not results (up to float rounding).
+IGNORED_MODEL = ("chunk", "rays_per_backward")
+# What `test` checks: the scored scene and its split are the trained ones.
+TEST_KEYS = ("scene", "train_frames", "data_class")
+
+
+def _plain(value: Any) -> Any:
+    """JSON-safe copy (paths and other objects become strings)."""
+    return json.loads(json.dumps(value, default=str))
+
+
+def run_settings(config: Any, datamodule: Any) -> dict[str, Any]:
+    """What identifies a run's training data and model: the data module's class, its arguments (except
+    `IGNORED_DATA`), the scene it reads (`cache_key()`: the resolved folder), its train frames and size, and the
+    model's arguments (except `IGNORED_MODEL`). `config` is the subcommand's parsed config (a jsonargparse Namespace
+    or a dict)."""
+    config = config.as_dict() if hasattr(config, "as_dict") else dict(config)
+    data = config.get("data") or {}
+    init_args = dict(data.get("init_args") or {}) if isinstance(data, dict) else {}
+    settings: dict[str, Any] = {
+        "data_class": data.get("class_path") if isinstance(data, dict) else type(datamodule).__name__,
+        "data": {k: v for k, v in init_args.items() if k not in IGNORED_DATA},
+        "model": {k: v for k, v in (config.get("model") or {}).items() if k not in IGNORED_MODEL},
+    }
+    if hasattr(datamodule, "cache_key"):
+        settings["scene"] = datamodule.cache_key()
+    scene = getattr(datamodule, "scene", None)
+    if scene is not None:
+        settings["train_frames"] = list(scene.split.train)
+        settings["size"] = [int(scene.views.height), int(scene.views.width)]
+    return _plain(settings)
+
+
+def _flatten(value: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(value, dict) and value:
+        out: dict[str, Any] = {}
+        for key, item in value.items():
+            out.update(_flatten(item, f"{prefix}.{key}" if prefix else str(key)))
+        return out
+    return {prefix: value}
+
+
+def _short(value: Any) -> str:
+    text = json.dumps(value) if not isinstance(value, str) else value
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def setting_changes(recorded: dict[str, Any], current: dict[str, Any], keys: tuple[str, ...] | None = None,
+                    allowed: tuple[str, ...] = ()) -> list[str]:
+    """`key: recorded -> current` for each setting that differs (restricted to top-level `keys` if given), except
+    those under an `allowed` key (a dotted key or a prefix of one, e.g. `data.init_args.rays_per_batch` or
+    `model.optimizer`; `data.init_args.X` and `data.X` both name the data module's argument X)."""
+    if keys is not None:
+        recorded = {k: v for k, v in recorded.items() if k in keys}
+        current = {k: v for k, v in current.items() if k in keys}
+    old, new = _flatten(recorded), _flatten(current)
+    allowed = tuple(a.replace("data.init_args.", "data.").replace("model.init_args.", "model.") for a in allowed)
+    changes = []
+    for key in sorted(set(old) | set(new)):
+        if old.get(key, "(unset)") == new.get(key, "(unset)"):
+            continue
+        if any(key == a or key.startswith(a + ".") for a in allowed):
+            continue
+        changes.append(f"{key}: {_short(old.get(key, '(unset)'))} -> {_short(new.get(key, '(unset)'))}")
+    return changes
+
+
+def rng_state() -> dict[str, Any]:
+    """Lightning's collection of the global random states, with numpy's key array as a tensor: checkpoints are
+    loaded with `weights_only`, which refuses numpy arrays."""
+    states = _collect_rng_states()
+    if "numpy" in states:
+        kind, keys, pos, has_gauss, cached = states["numpy"]
+        states["numpy"] = (kind, torch.from_numpy(keys.astype(np.int64)), int(pos), int(has_gauss), float(cached))
+    return states
+
+
+def set_rng_state(states: dict[str, Any]) -> None:
+    """Sets the states `rng_state` returned."""
+    states = dict(states)
+    if "numpy" in states:
+        kind, keys, pos, has_gauss, cached = states["numpy"]
+        states["numpy"] = (kind, np.asarray(keys, dtype=np.int64).astype(np.uint32), pos, has_gauss, cached)
+    _set_rng_states(states)
+
+
+def recorded_settings(checkpoint: dict) -> dict[str, Any] | None:
+    """The run settings a checkpoint was trained with (None: written before they were recorded)."""
+    record = checkpoint.get(RECORD_KEY)
+    return record.get("settings") if isinstance(record, dict) else None
+
+
+class RunRecord(L.Callback):
+    """Writes the random state and the run's settings into every checkpoint, and sets the random state again when a
+    fit resumes (module docstring). A default callback of every run (`cli.trainer_defaults`)."""
+
+    def __init__(self) -> None:
+        self.settings: dict[str, Any] | None = None
+        """The run's settings (`run_settings`), set by the CLI before a fit."""
+        self._rng: dict[str, Any] | None = None
+        self._resumed_rng: dict[str, Any] | None = None
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        # Taken here, before the checkpoint callbacks (which Lightning calls last) write this step's checkpoint:
+        # the state the next step starts from.
+        self._rng = rng_state()
+
+    def on_validation_end(self, trainer, pl_module) -> None:
+        # Validation inside fit must not move the training's random stream (its data loader alone draws a seed from
+        # it): the next step starts from the state the last one left, as after a resume from a checkpoint written
+        # before the validation.
+        if trainer.state.fn == "fit" and self._rng is not None:
+            set_rng_state(self._rng)
+
+    def on_save_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
+        checkpoint[RECORD_KEY] = {"settings": self.settings, "rng": self._rng or rng_state()}
+
+    def on_load_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
+        record = checkpoint.get(RECORD_KEY)
+        self._resumed_rng = record.get("rng") if isinstance(record, dict) else None
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        # Set at the first step, after everything between restore and training (the data loader's own seed draw).
+        if self._resumed_rng is not None:
+            set_rng_state(self._resumed_rng)
+            self._resumed_rng = None
+
+
+def describe_checkpoint(path: str | Path, checkpoint: dict) -> str:
+    return f"{path} (step {int(checkpoint.get('global_step', 0))})"

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from simplenerf.data.photos import MARKER, judge
+from simplenerf.data.process_checks import MARKER, judge
 from tests.test_cli import REPO, run, run_args
 
 ERROR = "simplenerf: error: "

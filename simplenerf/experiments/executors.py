@@ -1,0 +1,224 @@
+"""Runs a plan's units with submitit (no scheduler of our own): what is done is skipped, the rest is submitted.
+
+- `slurm`: one job array per stage (`SlurmExecutor.map_array`), each with `afterok` dependencies on the arrays whose
+  outputs it reads (the table: `afterany`, it shows whatever was tested) and `--kill-on-invalid-dep=yes`, so a failed
+  job cancels what needs it instead of leaving it pending; run the sweep again to retry. The array's `%N` is
+  `resources.concurrent_jobs`. `--signal=USR1@90` is Lightning's requeue signal (`SLURMEnvironment(auto_requeue=True)`,
+  see `simplenerf.experiments.jobs`); submitit's own preemption signal (USR2) is never sent, so only Lightning requeues.
+  `--dry-run` writes the same arrays as self-contained sbatch scripts plus `submit.sh` instead (`write_slurm_scripts`).
+- `local`: the same graph on this machine, stage after stage, `resources.concurrent_jobs` submitit `LocalExecutor`
+  jobs (processes) at a time.
+- `debug`: the same, in this process, one job after the other (submitit's `DebugExecutor`).
+
+A unit runs when it is not done (`is_done`) or something it needs runs; locally a unit whose needs did not finish is
+skipped ("blocked"). The plan is written to `<sweep>/sweep.json` first: `sweep status` reads it and the units' state
+files.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from simplenerf.experiments.jobs import run_unit
+from simplenerf.experiments.plan import STAGES, Plan, Unit
+from simplenerf.experiments.spec import Resources
+from simplenerf.experiments.state import read_state, read_status
+
+MANIFEST = "sweep.json"
+REQUEUE_SIGNAL = "USR1@90"  # Lightning's SLURMEnvironment requeue signal, 90 s before the time limit
+
+
+def is_done(unit: Unit) -> bool:
+    """Done with the same digest; a test also of the fit that is there now (a resumed, longer fit is tested again);
+    the table never (it is rewritten after every sweep)."""
+    if unit.stage == "table":
+        return False
+    status, state = read_status(Path(unit.folder), unit.stage, unit.digest)
+    if status != "done":
+        return False
+    if unit.stage == "test":
+        fit = read_state(Path(unit.folder), "fit") or {}
+        return state.get("fit_ended") == fit.get("ended")
+    return True
+
+
+def units_to_run(plan: Plan) -> list[Unit]:
+    """The units that are not done, or need one that runs, in stage order."""
+    runs: set[str] = set()
+    for unit in plan.units:
+        if not is_done(unit) or any(need in runs for need in unit.needs):
+            runs.add(unit.id)
+    return [u for u in plan.units if u.id in runs]
+
+
+def write_manifest(plan: Plan) -> Path:
+    plan.output.mkdir(parents=True, exist_ok=True)
+    path = plan.output / MANIFEST
+    path.write_text(json.dumps({"name": plan.sweep.name, "units": [u.to_dict() for u in plan.units]}, indent=1))
+    return path
+
+
+def read_manifest(folder: Path) -> tuple[str, list[Unit]]:
+    data = json.loads((Path(folder) / MANIFEST).read_text())
+    return data["name"], [Unit.from_dict(u) for u in data["units"]]
+
+
+def _quiet_run(unit: dict) -> str:
+    """run_unit for the debug executor: failures are recorded in the state file, never raised (submitit's debug jobs
+    open a debugger on an exception)."""
+    try:
+        return run_unit(unit, raise_on_failure=False)
+    except Exception:
+        return "failed"
+
+
+def waves(todo: list[Unit]) -> list[list[Unit]]:
+    """The units in dependency levels: a unit's wave comes after the waves of the units it needs (dense NeRFs and fits
+    first, together; then depth, masks, tests, the table)."""
+    level: dict[str, int] = {}
+    for unit in todo:  # in stage order: what a unit needs comes before it
+        level[unit.id] = 1 + max((level.get(n, -1) for n in unit.needs), default=-1)
+    return [[u for u in todo if level[u.id] == k] for k in sorted(set(level.values()))]
+
+
+def run_here(plan: Plan, todo: list[Unit], executor: str, log=print) -> dict[str, str]:
+    """The local and debug executors: wave after wave (`waves`), `concurrent_jobs` at a time (debug: one); returns unit id ->
+    done / failed / blocked."""
+    import submitit
+
+    logs = plan.output / "logs"
+    resources = plan.sweep.resources
+    if executor == "debug":
+        ex = submitit.DebugExecutor(folder=logs)
+        workers = 1
+    else:
+        ex = submitit.LocalExecutor(folder=logs)
+        # A local job is not cut by a time limit (a week); GPUs: the first gpus_per_job of this machine.
+        ex.update_parameters(timeout_min=7 * 24 * 60, gpus_per_node=resources.gpus_per_job)
+        workers = resources.concurrent_jobs
+    lock = threading.Lock()
+    outcome: dict[str, str] = {}
+    running = {u.id for u in todo}
+
+    def one(unit: Unit) -> str:
+        with lock:
+            job = ex.submit(_quiet_run if executor == "debug" else run_unit, unit.to_dict())
+        log(f"  {unit.stage} {unit.key}: started (job {job.job_id})")
+        try:
+            result = job.result()
+        except Exception:  # the job's exception, or its process was killed
+            result = "failed"
+        if result != "done":
+            state = read_state(Path(unit.folder), unit.stage) or {}
+            log(f"  {unit.stage} {unit.key}: failed: {state.get('error') or 'the job process ended (killed?)'}")
+        else:
+            log(f"  {unit.stage} {unit.key}: done")
+        return result
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for wave in waves(todo):
+            ready = []
+            for unit in wave:
+                blocked = [n for n in unit.needs if n in running and outcome.get(n) != "done"]
+                if blocked and unit.stage != "table":
+                    outcome[unit.id] = "blocked"
+                    log(f"  {unit.stage} {unit.key}: blocked ({blocked[0]} did not finish)")
+                else:
+                    ready.append(unit)
+            if ready:
+                stages = ", ".join(dict.fromkeys(u.stage for u in ready))
+                log(f"{stages}: {len(ready)} job(s), {min(workers, len(ready))} at a time")
+            for unit, result in zip(ready, pool.map(one, ready), strict=True):
+                outcome[unit.id] = result
+    return outcome
+
+
+def slurm_parameters(resources: Resources, name: str, stage: str) -> dict:
+    """The submitit SlurmExecutor parameters of one stage's array (`_make_sbatch_string`'s names)."""
+    params = {"job_name": f"{name}-{stage}", "time": resources.time_limit_min,
+              "cpus_per_task": resources.cpus_per_job, "ntasks_per_node": 1, "nodes": 1,
+              "array_parallelism": resources.concurrent_jobs, "setup": list(resources.setup),
+              "stderr_to_stdout": True,
+              "additional_parameters": {"signal": REQUEUE_SIGNAL, "kill-on-invalid-dep": "yes",
+                                        **resources.slurm_args}}
+    if resources.gpus_per_job:
+        params["gpus_per_node"] = resources.gpus_per_job
+    for key in ("partition", "account"):
+        if getattr(resources, key):
+            params[key] = getattr(resources, key)
+    if resources.mem_gb:
+        params["mem"] = f"{int(resources.mem_gb * 1024)}MB"
+    return params
+
+
+def _stage_needs(units: list[Unit], stage: str, submitted: set[str]) -> list[str]:
+    """The stages whose submitted units the units of `stage` need."""
+    ids = {n for u in units if u.stage == stage for n in u.needs if n in submitted}
+    return [s for s in STAGES if any(i.startswith(s + ":") for i in ids)]
+
+
+def submit_slurm(plan: Plan, todo: list[Unit], log=print) -> dict[str, str]:
+    """One array per stage, with afterok dependencies; returns stage -> SLURM array job id."""
+    import submitit
+
+    submitted = {u.id for u in todo}
+    ids: dict[str, str] = {}
+    for stage in STAGES:
+        units = [u for u in todo if u.stage == stage]
+        if not units:
+            continue
+        ex = submitit.SlurmExecutor(folder=plan.output / "slurm" / "logs", max_num_timeout=0)
+        params = slurm_parameters(plan.sweep.resources, plan.sweep.name, stage)
+        needs = [ids[s] for s in _stage_needs(todo, stage, submitted) if s in ids]
+        if needs:
+            kind = "afterany" if stage == "table" else "afterok"
+            params["additional_parameters"]["dependency"] = f"{kind}:" + ":".join(needs)
+        ex.update_parameters(**params)
+        jobs = ex.map_array(run_unit, [u.to_dict() for u in units])
+        ids[stage] = str(jobs[0].job_id).split("_")[0]
+        log(f"{stage}: array {ids[stage]} of {len(units)} job(s)" + (f", after {', '.join(needs)}" if needs else ""))
+    return ids
+
+
+def write_slurm_scripts(plan: Plan, todo: list[Unit]) -> list[Path]:
+    """`--dry-run --executor slurm`: per stage `<sweep>/slurm/<stage>.sbatch` (the array submitit would submit, its
+    command `simplenerf sweep job` running unit $SLURM_ARRAY_TASK_ID of `<stage>.json`) and `submit.sh`, which submits
+    them in order with their dependencies. Nothing is submitted."""
+    from submitit.slurm.slurm import _make_sbatch_string
+
+    folder = plan.output / "slurm"
+    folder.mkdir(parents=True, exist_ok=True)
+    submitted = {u.id for u in todo}
+    written = []
+    lines = ["#!/bin/bash", f"# Submits the sweep {plan.sweep.name}: one SLURM job array per stage, each after the arrays "
+             "it reads (afterok; the table afterany).", "# Written by `python -m simplenerf sweep --dry-run --executor "
+             "slurm`; submit with `bash submit.sh`.", "set -euo pipefail", 'cd "$(dirname "$0")"']
+    python = shlex.quote(sys.executable)
+    for stage in STAGES:
+        units = [u for u in todo if u.stage == stage]
+        if not units:
+            continue
+        (folder / f"{stage}.json").write_text(json.dumps([u.to_dict() for u in units], indent=1))
+        command = (f"{python} -u -m simplenerf sweep job {shlex.quote(str(plan.output))} {stage} "
+                   "${SLURM_ARRAY_TASK_ID}")
+        text = _make_sbatch_string(command=command, folder=folder / "logs", map_count=len(units),
+                                   **slurm_parameters(plan.sweep.resources, plan.sweep.name, stage))
+        path = folder / f"{stage}.sbatch"
+        path.write_text(text)
+        written.append(path)
+        needs = _stage_needs(todo, stage, submitted)
+        dependency = ""
+        if needs:
+            kind = "afterany" if stage == "table" else "afterok"
+            dependency = f" --dependency={kind}:" + ":".join(f"${{{s}%%;*}}" for s in needs)
+        lines.append(f"{stage}=$(sbatch --parsable{dependency} {stage}.sbatch)")
+        lines.append(f'echo "{stage}: job array ${{{stage}%%;*}} ({len(units)} jobs)"')
+    script = folder / "submit.sh"
+    script.write_text("\n".join(lines) + "\n")
+    script.chmod(0o755)
+    return [*written, script]

@@ -139,13 +139,14 @@ def run_here(plan: Plan, todo: list[Unit], executor: str, log=print) -> dict[str
 
 
 def slurm_parameters(resources: Resources, name: str, stage: str) -> dict:
-    """The submitit SlurmExecutor parameters of one stage's array (`_make_sbatch_string`'s names)."""
+    """The submitit SlurmExecutor parameters of one stage's array (`_make_sbatch_string`'s names). Jobs start in the
+    folder the sweep was started from (`--chdir`), where the sweep file's relative paths and `resources.setup` hold."""
     params = {"job_name": f"{name}-{stage}", "time": resources.time_limit_min,
               "cpus_per_task": resources.cpus_per_job, "ntasks_per_node": 1, "nodes": 1,
               "array_parallelism": resources.concurrent_jobs, "setup": list(resources.setup),
               "stderr_to_stdout": True,
               "additional_parameters": {"signal": REQUEUE_SIGNAL, "kill-on-invalid-dep": "yes",
-                                        **resources.slurm_args}}
+                                        "chdir": str(Path.cwd()), **resources.slurm_args}}
     if resources.gpus_per_job:
         params["gpus_per_node"] = resources.gpus_per_job
     for key in ("partition", "account"):
@@ -197,7 +198,7 @@ def write_slurm_scripts(plan: Plan, todo: list[Unit]) -> list[Path]:
     written = []
     lines = ["#!/bin/bash", f"# Submits the sweep {plan.sweep.name}: one SLURM job array per stage, each after the arrays "
              "it reads (afterok; the table afterany).", "# Written by `python -m simplenerf sweep --dry-run --executor "
-             "slurm`; submit with `bash submit.sh`.", "set -euo pipefail", 'cd "$(dirname "$0")"']
+             "slurm`; submit with `bash submit.sh` (from any folder).", "set -euo pipefail"]
     python = shlex.quote(sys.executable)
     for stage in STAGES:
         units = [u for u in todo if u.stage == stage]
@@ -216,7 +217,7 @@ def write_slurm_scripts(plan: Plan, todo: list[Unit]) -> list[Path]:
         if needs:
             kind = "afterany" if stage == "table" else "afterok"
             dependency = f" --dependency={kind}:" + ":".join(f"${{{s}%%;*}}" for s in needs)
-        lines.append(f"{stage}=$(sbatch --parsable{dependency} {stage}.sbatch)")
+        lines.append(f"{stage}=$(sbatch --parsable{dependency} {shlex.quote(str(path))})")
         lines.append(f'echo "{stage}: job array ${{{stage}%%;*}} ({len(units)} jobs)"')
     script = folder / "submit.sh"
     script.write_text("\n".join(lines) + "\n")

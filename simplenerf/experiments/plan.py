@@ -119,7 +119,7 @@ def resolved_config(args: list[str], entry: str) -> dict:
     try:
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
             cli = make_cli(list(args), run=False, cli_class=ParseOnly)
-            text = cli.parser.dump(cli.config, skip_none=False, skip_validation=True)
+            text = cli.parser.dump(cli.config, skip_validation=True)
     except SystemExit:
         lines = [line for line in err.getvalue().splitlines() if line.strip()]
         line = next((x for x in lines if "error:" in x), lines[0] if lines else "does not parse")

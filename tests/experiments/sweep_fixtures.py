@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import yaml
+from lightning.pytorch import Callback
 
 from simplenerf.data.synthetic import make_synthetic_scene
 from tests.conftest import REPO
@@ -57,3 +58,53 @@ def models(configs: dict[str, Path], names=("SimpleNeRF", "DS-NeRF")) -> list[di
     files = {"SimpleNeRF": [str(configs["simplenerf"])],
              "DS-NeRF": [str(configs["simplenerf"]), str(configs["dsnerf"])]}
     return [{"name": name, "configs": files[name]} for name in names]
+
+
+class KillOnceAt(Callback):
+    """Kills its own process (SIGKILL: no checkpoint, no state update, as the OOM killer or a lost node would) when
+    training reaches `step`, once: `marker` records that it did, so the rerun of the same config trains on."""
+
+    def __init__(self, step: int, marker: str) -> None:
+        self.step, self.marker = step, marker
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        import os
+        import signal
+
+        if trainer.global_step == self.step and not Path(self.marker).exists():
+            Path(self.marker).touch()
+            os.kill(os.getpid(), signal.SIGKILL)
+
+
+class RequeueSignalAt(Callback):
+    """Sends this process SLURM's requeue signal (SIGUSR1) when training reaches `step`, then stops the run as SLURM
+    would once it has requeued the job (here by raising `Preempted`), once (`marker`)."""
+
+    def __init__(self, step: int, marker: str) -> None:
+        self.step, self.marker = step, marker
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        import os
+        import signal
+
+        if trainer.global_step == self.step and not Path(self.marker).exists():
+            Path(self.marker).touch()
+            os.kill(os.getpid(), signal.SIGUSR1)
+            raise Preempted(f"preempted at step {self.step}")
+
+
+class Preempted(RuntimeError):
+    pass
+
+
+def callbacks_override(tmp: Path, name: str, callback: str, step: int, keep_warmup: bool = True) -> Path:
+    """A config override whose trainer.callbacks (a list: replaced whole) are the tiny warm-up plus `callback`."""
+    callbacks = []
+    if keep_warmup:
+        callbacks.append({"class_path": "simplenerf.callbacks.LossWeightSchedule",
+                          "init_args": {"schedules": {k: [[0, 0.0], [1, 0.1]] for k in ("points", "views", "cfc")}}})
+    callbacks.append({"class_path": f"tests.experiments.sweep_fixtures.{callback}",
+                      "init_args": {"step": step, "marker": str(tmp / f"{name}.marker")}})
+    path = tmp / f"{name}.yaml"
+    path.write_text(yaml.safe_dump({"trainer": {"callbacks": callbacks}}))
+    return path

@@ -19,7 +19,8 @@ from simplenerf.experiments.executors import (
     write_slurm_scripts,
 )
 from simplenerf.experiments.plan import STAGES, build_plan
-from simplenerf.experiments.spec import EXECUTORS, load_sweep
+from simplenerf.experiments.spec import EXECUTORS, SweepError, load_sweep
+from simplenerf.experiments.state import process_alive, read_state, read_status
 from simplenerf.experiments.status import status_table
 
 
@@ -68,6 +69,12 @@ def main(argv: list[str]) -> None:
             written = write_slurm_scripts(plan, todo)
             print(f"wrote {', '.join(str(p) for p in written)}; submit with: bash {written[-1]}")
         return
+    live = [u for u in todo if read_status(Path(u.folder), u.stage, u.digest)[0] == "running"
+            and process_alive(read_state(Path(u.folder), u.stage) or {})]
+    if live:
+        state = read_state(Path(live[0].folder), live[0].stage) or {}
+        raise SweepError(f"{live[0].stage} {live[0].key} is running (process {state.get('pid')} on this machine): "
+                         "one sweep at a time in a sweep folder; wait for it, or stop it and run the sweep again")
     write_manifest(plan)
     if executor == "slurm":
         submit_slurm(plan, todo)

@@ -87,8 +87,8 @@ def waves(todo: list[Unit]) -> list[list[Unit]]:
 
 
 def run_here(plan: Plan, todo: list[Unit], executor: str, log=print) -> dict[str, str]:
-    """The local and debug executors: wave after wave (`waves`), `concurrent_jobs` at a time (debug: one); returns unit id ->
-    done / failed / blocked."""
+    """The local and debug executors: wave after wave (`waves`), `concurrent_jobs` at a time (debug: one); returns
+    unit id -> done / failed / blocked."""
     import submitit
 
     logs = plan.output / "logs"
@@ -196,9 +196,11 @@ def write_slurm_scripts(plan: Plan, todo: list[Unit]) -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     submitted = {u.id for u in todo}
     written = []
-    lines = ["#!/bin/bash", f"# Submits the sweep {plan.sweep.name}: one SLURM job array per stage, each after the arrays "
-             "it reads (afterok; the table afterany).", "# Written by `python -m simplenerf sweep --dry-run --executor "
-             "slurm`; submit with `bash submit.sh` (from any folder).", "set -euo pipefail"]
+    lines = ["#!/bin/bash",
+             f"# Submits the sweep {plan.sweep.name}: one SLURM job array per stage, each after the arrays it reads "
+             "(afterok; the table afterany).",
+             "# Written by `python -m simplenerf sweep --dry-run --executor slurm`; submit with `bash submit.sh` (from "
+             "any folder).", "set -euo pipefail"]
     python = shlex.quote(sys.executable)
     for stage in STAGES:
         units = [u for u in todo if u.stage == stage]

@@ -170,7 +170,8 @@ def run_unit(unit: Unit | dict, raise_on_failure: bool = True) -> str:
     except JobFailed as e:
         state.update(status="failed", error=str(e))
     except BaseException as e:  # a bug or an interrupt: recorded, then passed on
-        state.update(status="failed", error=f"{type(e).__name__}: {str(e).strip().splitlines()[0] if str(e).strip() else ''}")
+        text = str(e).strip()
+        state.update(status="failed", error=f"{type(e).__name__}: {text.splitlines()[0] if text else ''}")
         _close(state, folder, unit, start)
         raise
     _close(state, folder, unit, start)

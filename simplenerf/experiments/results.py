@@ -8,8 +8,16 @@ from __future__ import annotations
 from pathlib import Path
 
 from simplenerf.evaluation.records import coverage_warnings, load_records, mean_rows
-from simplenerf.evaluation.tables import caption, csv_rows, markdown_table, paper_rows, score_keys, table_metrics, \
-    table_views, write_csv
+from simplenerf.evaluation.tables import (
+    caption,
+    csv_rows,
+    markdown_table,
+    paper_rows,
+    score_keys,
+    table_metrics,
+    table_views,
+    write_csv,
+)
 
 FORMAT_TITLES = {"llff": "LLFF", "realestate": "RealEstate-10K"}
 
@@ -19,9 +27,9 @@ def write_results(out: Path, runs: list[list[str]], tables: dict[str, str], scor
     Returns the written files."""
     blocks, lines = [], []
     for fmt in dict.fromkeys(f for f, _, _ in runs):
-        tested = [(row, Path(folder)) for f, row, folder in runs
-                  if f == fmt and (Path(folder) / "test" / "summary.json").is_file()]
-        missing = [folder for f, _, folder in runs if f == fmt and not (Path(folder) / "test" / "summary.json").is_file()]
+        ours = [(row, Path(folder)) for f, row, folder in runs if f == fmt]
+        tested = [(row, folder) for row, folder in ours if (folder / "test" / "summary.json").is_file()]
+        missing = [str(folder) for row, folder in ours if not (folder / "test" / "summary.json").is_file()]
         paper = tables.get(fmt)
         records = load_records(tested)
         rows = (paper_rows(paper) if paper else []) + mean_rows(records)

@@ -20,8 +20,8 @@ def tiny_configs(tmp: Path, steps: int = STEPS) -> dict[str, Path]:
     augmentations, no L_cfc, no warm-up) and dense.yaml (every non-test frame, colour loss only)."""
     tmp.mkdir(parents=True, exist_ok=True)
     demo = yaml.safe_load((REPO / "configs" / "demo.yaml").read_text())
-    model = {**demo["model"], "nerf": shrink(demo["model"]["nerf"]), "augmentations": shrink(demo["model"]["augmentations"]),
-             "chunk": 4096}
+    model = {**demo["model"], "nerf": shrink(demo["model"]["nerf"]),
+             "augmentations": shrink(demo["model"]["augmentations"]), "chunk": 4096}
     data = {"class_path": "simplenerf.data.LLFFDataModule",
             "init_args": {"scene_dir": "unset", "factor": 1, "n_views": 2, "rays_per_batch": 64,
                           "sparse_rays_per_batch": 0}}

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -129,8 +130,6 @@ def test_bad_input_stops_before_anything_runs(tmp_path):
         lines = proc.stderr.strip().splitlines()
         assert proc.returncode == 2 and len(lines) == 1, (name, proc.stderr)
         assert lines[0].startswith("simplenerf: error: "), name
-        import re
-
         assert re.search(message, lines[0]), (name, lines[0])
         assert not out.exists(), name  # nothing written, nothing submitted
 
@@ -193,19 +192,21 @@ def test_slurm_dry_run_writes_scripts_a_user_submits_as_they_are(table1_sweep, t
                  f"#SBATCH --chdir={REPO}", "-m simplenerf sweep job", "${SLURM_ARRAY_TASK_ID}", "srun "):
         assert line in fit, line
     submit = (folder / "submit.sh").read_text()
-    assert f"test=$(sbatch --parsable --dependency=afterok:${{masks%%;*}}:${{fit%%;*}} {folder / 'test.sbatch'})" in submit
+    test_line = f"test=$(sbatch --parsable --dependency=afterok:${{masks%%;*}}:${{fit%%;*}} {folder / 'test.sbatch'})"
+    assert test_line in submit
     assert f"table=$(sbatch --parsable --dependency=afterany:${{test%%;*}} {folder / 'table.sbatch'})" in submit
     # submit.sh as it is, with a stand-in sbatch that records its arguments
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     (bin_dir / "sbatch").write_text('#!/bin/bash\necho "$@" >> "$(dirname "$0")/calls"\necho $((RANDOM + 1000))\n')
     (bin_dir / "sbatch").chmod(0o755)
-    run = subprocess.run(["bash", str(folder / "submit.sh")], env={**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}"},
-                         capture_output=True, text=True)
+    path = f"{bin_dir}:{os.environ['PATH']}"
+    run = subprocess.run(["bash", str(folder / "submit.sh")], env={**os.environ, "PATH": path}, capture_output=True,
+                         text=True)
     assert run.returncode == 0, run.stderr
     calls = (bin_dir / "calls").read_text().splitlines()
-    assert [Path(c.split()[-1]).name for c in calls] == [f"{s}.sbatch" for s in ("dense", "depth", "masks", "fit", "test",
-                                                                                "table")]
+    stages = ("dense", "depth", "masks", "fit", "test", "table")
+    assert [Path(c.split()[-1]).name for c in calls] == [f"{s}.sbatch" for s in stages]
     assert "--dependency=afterok:" in calls[4]
 
 
@@ -214,8 +215,8 @@ def test_slurm_submission_through_submitit(table1_sweep, tmp_path, monkeypatch):
     Lightning's requeue signal in the scripts; submitit's own preemption signal is not the one SLURM sends."""
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
-    (bin_dir / "sbatch").write_text('#!/bin/bash\nd=$(dirname "$0"); n=$(( $(cat "$d/n" 2>/dev/null || echo 1000) + 1 ))\n'
-                                    'echo $n > "$d/n"; cp "${@: -1}" "$d/$n.sh"; echo "Submitted batch job $n"\n')
+    (bin_dir / "sbatch").write_text('#!/bin/bash\nd=$(dirname "$0"); n=$(( $(cat "$d/n" 2>/dev/null || echo 1000) + 1'
+                                    '))\necho $n > "$d/n"; cp "${@: -1}" "$d/$n.sh"; echo "Submitted batch job $n"\n')
     (bin_dir / "sbatch").chmod(0o755)
     (bin_dir / "srun").write_text("#!/bin/bash\n")  # submitit checks that it is on a SLURM machine
     (bin_dir / "srun").chmod(0o755)

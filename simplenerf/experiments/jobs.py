@@ -25,7 +25,7 @@ from pathlib import Path
 
 from simplenerf.errors import SimpleNeRFError
 from simplenerf.experiments.plan import Unit
-from simplenerf.experiments.state import checkpoint_steps, job_id, now, read_state, write_state
+from simplenerf.experiments.state import checkpoint_steps, job_id, now, read_state, wall_time, write_state
 
 
 class JobFailed(RuntimeError):
@@ -153,8 +153,10 @@ def run_unit(unit: Unit | dict, raise_on_failure: bool = True) -> str:
     folder = Path(unit.folder)
     previous = read_state(folder, unit.stage) or {}
     same = previous.get("digest") == unit.digest
+    # An attempt killed without a word (its state still says running) counts until its newest file.
+    wall = wall_time("stopped" if previous.get("status") == "running" else "done", previous, folder) if same else 0.0
     state = {"stage": unit.stage, "key": unit.key, "digest": unit.digest, "status": "running", "started": now(),
-             "ended": None, "wall_s": previous.get("wall_s", 0.0) if same else 0.0,
+             "ended": None, "wall_s": round(wall, 1),
              "attempts": (previous.get("attempts", 0) if same else 0) + 1, "host": socket.gethostname(),
              "pid": os.getpid(), "job_id": job_id(), "error": None, "steps": checkpoint_steps(folder),
              "max_steps": unit.extra.get("max_steps")}

@@ -250,8 +250,9 @@ def build_plan(sweep: Sweep, sweep_file: str | Path | None = None, check_scenes:
             if sweep.budget.max_steps is not None:
                 base += ["--trainer.max_steps", str(sweep.budget.max_steps)]
             n0, s0 = sweep.views[0], sweep.seeds[0]
-            config = resolved_for_scene([*base, "--data.init_args.n_views", str(n0), "--seed_everything", str(s0),
-                                         "--data.init_args.seed", str(s0)], str(Path(scene.path).resolve()), entry, cache)
+            first = [*base, "--data.init_args.n_views", str(n0), "--seed_everything", str(s0), "--data.init_args.seed",
+                     str(s0)]
+            config = resolved_for_scene(first, str(Path(scene.path).resolve()), entry, cache)
             max_steps = config.get("trainer", {}).get("max_steps")
             for n in sweep.views:
                 ref_folder, ref_digest, ref_unit = depth_of[(name, n)]

@@ -15,6 +15,7 @@ import json
 import os
 import re
 import socket
+import time
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -82,3 +83,17 @@ def read_status(folder: Path, stage: str, digest: str) -> tuple[str, dict | None
     if status == "running" and process_alive(state) is False:
         return "stopped", state
     return status, state
+
+
+def wall_time(status: str, state: dict, folder: Path) -> float:
+    """Seconds over all attempts; a running attempt counts until now, a stopped one until its newest file."""
+    seconds = float(state.get("wall_s") or 0.0)
+    if status in ("running", "stopped") and state.get("started"):
+        started = datetime.fromisoformat(state["started"]).timestamp()
+        if status == "running":
+            end = time.time()
+        else:
+            files = [p.stat().st_mtime for p in folder.rglob("*") if p.is_file() and STATE_DIR not in p.parts]
+            end = max(files, default=started)
+        seconds += max(0.0, end - started)
+    return seconds

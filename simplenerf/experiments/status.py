@@ -4,13 +4,11 @@ stopped: its process is gone, done, failed with its error line), training steps 
 
 from __future__ import annotations
 
-import time
-from datetime import datetime
 from pathlib import Path
 
 from simplenerf.experiments.executors import MANIFEST, is_done, read_manifest
 from simplenerf.experiments.spec import SweepError
-from simplenerf.experiments.state import STATE_DIR, checkpoint_steps, read_status
+from simplenerf.experiments.state import checkpoint_steps, read_status, wall_time
 
 COLUMNS = ("stage", "scene", "views", "model", "seed", "status", "steps", "wall", "job", "error")
 
@@ -20,20 +18,6 @@ def _wall(seconds: float | None) -> str:
         return ""
     s = int(seconds)
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
-
-
-def wall_time(status: str, state: dict, folder: Path) -> float:
-    """Seconds over all attempts; a running attempt counts until now, a stopped one until its newest file."""
-    seconds = float(state.get("wall_s") or 0.0)
-    if status in ("running", "stopped") and state.get("started"):
-        started = datetime.fromisoformat(state["started"]).timestamp()
-        if status == "running":
-            end = time.time()
-        else:
-            files = [p.stat().st_mtime for p in folder.rglob("*") if p.is_file() and STATE_DIR not in p.parts]
-            end = max(files, default=started)
-        seconds += max(0.0, end - started)
-    return seconds
 
 
 def status_rows(folder: Path) -> list[dict[str, str]]:

@@ -66,6 +66,7 @@ def main(argv: list[str]) -> None:
             print(f"  {unit.stage} {unit.key}" + (f"  (after {', '.join(unit.needs)})" if unit.needs and
                                                   unit.stage != "table" else ""))
         if executor == "slurm":
+            write_manifest(plan)  # for `sweep status` once the scripts are submitted
             written = write_slurm_scripts(plan, todo)
             print(f"wrote {', '.join(str(p) for p in written)}; submit with: bash {written[-1]}")
         return

@@ -81,7 +81,12 @@ def main(argv: list[str]) -> None:
         submit_slurm(plan, todo)
         print(f"submitted; follow with: python -m simplenerf sweep status {plan.output}")
         return
-    outcome = run_here(plan, todo, executor)
+    try:
+        outcome = run_here(plan, todo, executor)
+    except KeyboardInterrupt:  # Ctrl-C reaches the jobs too: Lightning saves last.ckpt and they stop
+        print(f"sweep {sweep.name}: interrupted; the same command resumes it "
+              f"(python -m simplenerf sweep status {plan.output} lists every job)", flush=True)
+        raise SystemExit(130) from None
     failed = [k for k, v in outcome.items() if v != "done"]
     print(status_table(plan.output))
     print(f"sweep {sweep.name}: {len(outcome) - len(failed)} of {len(outcome)} jobs done in "

@@ -33,6 +33,8 @@ def status_rows(folder: Path) -> list[dict[str, str]]:
         steps = ""
         if unit.stage in ("fit", "dense") and status != "pending":
             done, total = checkpoint_steps(Path(unit.folder)), state.get("max_steps")
+            if status == "done" and total:  # a done fit reached max_steps (its last.ckpt has no step in its name)
+                done = total
             steps = f"{done or 0}/{total}" if total else str(done or 0)
         rows.append({"stage": unit.stage, "scene": unit.labels.get("scene", ""), "views": unit.labels.get("views", ""),
                      "model": unit.labels.get("model", ""), "seed": unit.labels.get("seed", ""), "status": status,

@@ -6,8 +6,8 @@
   `resources.concurrent_jobs`. `--signal=USR1@90` is Lightning's requeue signal (`SLURMEnvironment(auto_requeue=True)`,
   see `simplenerf.experiments.jobs`); submitit's own preemption signal (USR2) is never sent, so only Lightning requeues.
   `--dry-run` writes the same arrays as self-contained sbatch scripts plus `submit.sh` instead (`write_slurm_scripts`).
-- `local`: the same graph on this machine, stage after stage, `resources.concurrent_jobs` submitit `LocalExecutor`
-  jobs (processes) at a time.
+- `local`: the same graph on this machine, each job once the jobs it needs are done, `resources.concurrent_jobs`
+  submitit `LocalExecutor` jobs (processes) at a time.
 - `debug`: the same, in this process, one job after the other (submitit's `DebugExecutor`).
 
 A unit runs when it is not done (`is_done`) or something it needs runs; locally a unit whose needs did not finish is
@@ -21,7 +21,7 @@ import json
 import shlex
 import sys
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from pathlib import Path
 
 from simplenerf.experiments.jobs import run_unit
@@ -77,18 +77,9 @@ def _quiet_run(unit: dict) -> str:
         return "failed"
 
 
-def waves(todo: list[Unit]) -> list[list[Unit]]:
-    """The units in dependency levels: a unit's wave comes after the waves of the units it needs (dense NeRFs and fits
-    first, together; then depth, masks, tests, the table)."""
-    level: dict[str, int] = {}
-    for unit in todo:  # in stage order: what a unit needs comes before it
-        level[unit.id] = 1 + max((level.get(n, -1) for n in unit.needs), default=-1)
-    return [[u for u in todo if level[u.id] == k] for k in sorted(set(level.values()))]
-
-
 def run_here(plan: Plan, todo: list[Unit], executor: str, log=print) -> dict[str, str]:
-    """The local and debug executors: wave after wave (`waves`), `concurrent_jobs` at a time (debug: one); returns
-    unit id -> done / failed / blocked."""
+    """The local and debug executors: the plan's graph as SLURM runs it, each job once the jobs it needs are done,
+    `concurrent_jobs` at a time (debug: one); returns unit id -> done / failed / blocked."""
     import submitit
 
     logs = plan.output / "logs"
@@ -102,8 +93,7 @@ def run_here(plan: Plan, todo: list[Unit], executor: str, log=print) -> dict[str
         ex.update_parameters(timeout_min=7 * 24 * 60, gpus_per_node=resources.gpus_per_job)
         workers = resources.concurrent_jobs
     lock = threading.Lock()
-    outcome: dict[str, str] = {}
-    running = {u.id for u in todo}
+    slots = threading.Semaphore(workers)  # jobs running at once
 
     def one(unit: Unit) -> str:
         with lock:
@@ -120,21 +110,25 @@ def run_here(plan: Plan, todo: list[Unit], executor: str, log=print) -> dict[str
             log(f"  {unit.stage} {unit.key}: done")
         return result
 
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        for wave in waves(todo):
-            ready = []
-            for unit in wave:
-                blocked = [n for n in unit.needs if n in running and outcome.get(n) != "done"]
-                if blocked and unit.stage != "table":
-                    outcome[unit.id] = "blocked"
-                    log(f"  {unit.stage} {unit.key}: blocked ({blocked[0]} did not finish)")
-                else:
-                    ready.append(unit)
-            if ready:
-                stages = ", ".join(dict.fromkeys(u.stage for u in ready))
-                log(f"{stages}: {len(ready)} job(s), {min(workers, len(ready))} at a time")
-            for unit, result in zip(ready, pool.map(one, ready), strict=True):
-                outcome[unit.id] = result
+    futures: dict[str, Future] = {}
+
+    def after_needs(unit: Unit) -> str:
+        """As SLURM's afterok: the unit waits for the jobs it needs (the table: afterany), then for a free slot."""
+        needs = [futures[n] for n in unit.needs if n in futures]
+        wait(needs)
+        failed = [n for n in unit.needs if n in futures and futures[n].result() != "done"]
+        if failed and unit.stage != "table":
+            log(f"  {unit.stage} {unit.key}: blocked ({failed[0]} did not finish)")
+            return "blocked"
+        with slots:
+            return one(unit)
+
+    log(f"{len(todo)} job(s), {workers} at a time, each once the jobs it needs are done")
+    # One waiting thread per unit; `todo` is in stage order, so a unit's needs are submitted before it.
+    with ThreadPoolExecutor(max_workers=max(1, len(todo))) as pool:
+        for unit in todo:
+            futures[unit.id] = pool.submit(after_needs, unit)
+        outcome = {uid: future.result() for uid, future in futures.items()}
     return outcome
 
 

@@ -118,7 +118,9 @@ def _depth(unit: Unit) -> None:
     try:
         cli = load_for_tool([], unit.args, ckpt=str(ckpt), device=_device())
         dm, model = cli.datamodule, cli.model
-        paths = export_reference_depth(model.nerf, dm.scene, dm.near, model.hparams.chunk, unit.extra["out"])
+        # A depth job cut short keeps its frames: the folder belongs to this dense NeRF (the same digest).
+        paths = export_reference_depth(model.nerf, dm.scene, dm.near, model.hparams.chunk, unit.extra["out"],
+                                       skip_existing=True)
     except SimpleNeRFError as e:
         raise JobFailed(f"{type(e).__name__}: {e}") from None
     print(f"wrote {len(paths)} depth maps to {unit.extra['out']}", flush=True)

@@ -389,6 +389,11 @@ def split_overrides(argv: list[str]) -> tuple[list[str], list[str]]:
 def main(args: list[str] | None = None) -> None:
     """Entry point; bad input ends with one `error:` line and exit status 2 instead of a traceback."""
     argv = sys.argv[1:] if args is None else args
+    if argv[:1] == ["sweep"]:  # scenes x views x models x seeds as jobs (simplenerf.experiments), not a Lightning one
+        from simplenerf.experiments.command import main as sweep
+
+        run_tool(lambda: sweep(argv[1:]), PROG)
+        return
     if argv[:1] == ["process-data"]:  # photos -> an LLFF-layout scene (simplenerf.data.photos); not a Lightning command
         from simplenerf.data.photos import main as process_data
 

@@ -38,6 +38,9 @@ class WandbLogger(_LightningWandbLogger):
         save_dir: str = "runs",
         offline: bool | None = None,
         log_model: bool = False,
+        group: str | None = None,
+        tags: list[str] | None = None,
+        id: str | None = None,
     ) -> None:
         """
         Args:
@@ -46,6 +49,10 @@ class WandbLogger(_LightningWandbLogger):
             save_dir: folder for the local W&B files.
             offline: force offline/online; None: online only if credentials exist or WANDB_MODE says so.
             log_model: upload checkpoints as W&B artifacts.
+            group: W&B group (a sweep's runs share one, `simplenerf.experiments`).
+            tags: W&B tags (a sweep tags each run with its scene, views, model and seed).
+            id: W&B run id: a run started again with the same id continues that W&B run (a resumed or requeued
+                fit of a sweep); None: a new id each start.
         """
         if offline is None:
             offline = os.environ.get("WANDB_MODE", "") in ("offline", "dryrun", "disabled") or (
@@ -53,7 +60,8 @@ class WandbLogger(_LightningWandbLogger):
             )
         super().__init__(
             project=project, name=name, save_dir=save_dir, offline=offline, log_model=log_model,
-            settings={"silent": True},
+            settings={"silent": True}, id=id,
+            **{k: v for k, v in (("group", group), ("tags", tags)) if v is not None},
         )
         # Lightning passes anonymous=None, which W&B answers with a deprecation warning at every start.
         self._wandb_init.pop("anonymous", None)

@@ -8,7 +8,8 @@ from simplenerf.cli import SimpleNeRFCLI, make_cli
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 OVERRIDES = sorted((CONFIG_DIR / "overrides").rglob("*.yaml"))  # partial: added after a complete config
-CONFIGS = sorted(p for p in CONFIG_DIR.rglob("*.yaml") if p not in OVERRIDES)  # complete configs
+SWEEPS = sorted((CONFIG_DIR / "sweeps").rglob("*.yaml"))  # sweep files (simplenerf.experiments.spec), not CLI configs
+CONFIGS = sorted(p for p in CONFIG_DIR.rglob("*.yaml") if p not in OVERRIDES and p not in SWEEPS)  # complete configs
 
 
 class ParseOnlyCLI(SimpleNeRFCLI):
@@ -118,3 +119,15 @@ def test_ablation_changes_only_what_it_ablates(name):
     if mask:
         assert all(a["init_args"]["mask"]["class_path"].endswith(mask) for a in augs)
         assert ablated["model"]["coarse_fine_mask"]["class_path"].endswith(mask)
+
+
+@pytest.mark.parametrize("sweep", SWEEPS, ids=lambda p: str(p.relative_to(CONFIG_DIR)))
+def test_sweep_file_parses_and_its_model_configs_parse(sweep, monkeypatch):
+    """Each sweep file against the sweep schema, and every (model, scene) config it names against the real CLI (its
+    scenes need not exist here: the plan's dry-run mode)."""
+    from simplenerf.experiments.plan import build_plan
+    from simplenerf.experiments.spec import load_sweep
+
+    monkeypatch.chdir(CONFIG_DIR.parent)  # the sweep files' paths are relative to the repository root
+    plan = build_plan(load_sweep(sweep), sweep, check_scenes=False)
+    assert plan.stage("fit") and plan.stage("test") and plan.stage("table")

@@ -21,8 +21,8 @@ from simplenerf.data.scene import Scene
 
 
 @torch.no_grad()
-def export_reference_depth(model_nerf: nn.Module, scene: Scene, near: float, chunk: int, out_dir: str | Path
-                           ) -> list[Path]:
+def export_reference_depth(model_nerf: nn.Module, scene: Scene, near: float, chunk: int, out_dir: str | Path,
+                           skip_existing: bool = False) -> list[Path]:
     """Renders the fine depth of every frame of `scene` with `model_nerf` and writes one .npy per frame.
 
     Args:
@@ -31,6 +31,8 @@ def export_reference_depth(model_nerf: nn.Module, scene: Scene, near: float, chu
         near: the NDC near plane of the data module.
         chunk: rays per forward pass.
         out_dir: created if missing; files there of the same names are replaced.
+        skip_existing: keep a frame's file that is already there and reads as a depth map of the frame's size (an
+            export cut short resumes; the caller makes sure the files are this model's, as the sweep's digest does).
 
     Returns:
         the written paths, in frame order.
@@ -41,8 +43,18 @@ def export_reference_depth(model_nerf: nn.Module, scene: Scene, near: float, chu
     frames = Frames(scene.views, near)
     written = []
     for frame in tqdm(frames, desc="reference depth", unit="frame"):
-        depth = model_nerf.render_rays_chunked(frame.rays.to(device), chunk)["depth"].reshape(frame.height, frame.width)
         path = out_dir / f"{frame.name}.npy"
+        if skip_existing and _readable(path, (frame.height, frame.width)):
+            written.append(path)
+            continue
+        depth = model_nerf.render_rays_chunked(frame.rays.to(device), chunk)["depth"].reshape(frame.height, frame.width)
         np.save(path, (depth.double().cpu().numpy() / scene.scale).astype(np.float32))
         written.append(path)
     return written
+
+
+def _readable(path: Path, shape: tuple[int, int]) -> bool:
+    try:
+        return np.load(path).shape == shape
+    except (OSError, ValueError):
+        return False

@@ -1,0 +1,12 @@
+"""The paper's experiments as one command: scenes x views x models x seeds, with their dense references, tests and
+results table, on a SLURM cluster or on this machine (`python -m simplenerf sweep`).
+
+    spec.py       the sweep file (dataclasses jsonargparse checks)
+    plan.py       the sweep as units (jobs) of the stages dense -> depth -> masks, fit -> test -> table, with digests
+    state.py      a job's state file in its folder (running / done / failed, steps, wall time)
+    jobs.py       what a job does (`run_unit`), in the process its executor gives it
+    executors.py  submitit: SLURM job arrays with afterok dependencies, local processes, or in-process (debug)
+    results.py    the results table beside the paper's rows (simplenerf.evaluation.tables)
+    status.py     `sweep status SWEEP_DIR`
+    command.py    the command line
+"""

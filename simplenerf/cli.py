@@ -370,7 +370,9 @@ def run_tool(main_function: Callable[[], None], name: str) -> None:
     except (SimpleNeRFError, LPIPSWeightsNotFound, MisconfigurationException) as e:
         print(f"{name}: error: {e}", file=sys.stderr)
         sys.exit(getattr(e, "exit_status", 2))
-    except (KeyboardInterrupt, SystemExit) as e:
+    except (KeyboardInterrupt, SystemExit, Exception) as e:
+        # After a signal, any error is its consequence: a library that was running native code (pycolmap's SfM) may
+        # turn the pending interrupt into its own exception. Without a signal, only KeyboardInterrupt is a stop.
         if interrupts.received is None and not isinstance(e, KeyboardInterrupt):
             raise
         signum = interrupts.received or getattr(e, "signum", None) or signal.SIGINT

@@ -38,6 +38,12 @@ from tests.experiments.sweep_fixtures import (
 )
 
 
+def wandb_run_id(folder_name: str) -> str:
+    """The run id in W&B's offline folder name `offline-run-<time>-<id>`; W&B appends `-1`, `-2`, ... when two runs
+    start in the same second (a quick resume), so that suffix is not part of the id."""
+    return re.sub(r"-\d+$", "", folder_name.removeprefix("offline-run-").split("-", 1)[1])
+
+
 def sweep_cli(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess:
     env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true", "OMP_NUM_THREADS": "1"}
     return subprocess.run([sys.executable, "-m", "simplenerf", "sweep", *args], cwd=cwd, env=env,
@@ -87,7 +93,7 @@ def test_runs_share_a_wandb_group_and_fit_and_test_share_a_wandb_run(debug_sweep
     logger = yaml.safe_load((run / "config.yaml").read_text())["trainer"]["logger"]["init_args"]
     assert logger["group"] == "tiny" and logger["tags"] == ["scene0", "2v", "DS-NeRF", "seed0"]
     started = sorted(p.name for p in (run / "wandb").glob("offline-run-*"))
-    assert len(started) == 2 and len({name.rsplit("-", 1)[-1] for name in started}) == 1  # the same W&B run id
+    assert len(started) == 2 and len({wandb_run_id(name) for name in started}) == 1  # the same W&B run id
 
 
 def test_rerun_skips_what_finished(debug_sweep):
@@ -278,4 +284,4 @@ def test_requeue_under_slurm_continues_in_the_same_folder_and_wandb_run(tmp_path
     assert state["attempts"] == 2 and state["status"] == "done"
     assert torch.load(folder / "checkpoints" / "last.ckpt", weights_only=False)["global_step"] == 4
     started = sorted(p.name for p in (folder / "wandb").glob("offline-run-*"))
-    assert len(started) == 2 and len({name.rsplit("-", 1)[-1] for name in started}) == 1
+    assert len(started) == 2 and len({wandb_run_id(name) for name in started}) == 1

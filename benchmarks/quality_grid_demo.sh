@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The grid demo, timed: exactly the commands `make demo` runs (README "Grid backbone"), each with its wall time and
+# The grid demo, timed: exactly the commands `make demo` runs (docs/results.md "Grid backbone"), each with its wall time and
 # the process's CPU time, then the test metrics of both runs side by side.
 #
 #   benchmarks/quality_grid_demo.sh                 # from a fresh clone: the scene and SfM are computed on first use

@@ -99,7 +99,7 @@ class SimpleNeRF(L.LightningModule):
             depth_loss_space: what L_ap, L_av and L_cfc compare: `metric` depth (the paper and the release) or
                 `inverse` depth 1 / z, bounded by 1 / near (= 1 - NDC t with near 1). Metric depth grows without
                 bound towards the NDC far plane, where a few rays can dominate these squared losses (on the
-                RealEstate-10K grid runs, README "Grid backbone"). The masks always compare metric depths.
+                RealEstate-10K grid runs, docs/results.md "Grid backbone"). The masks always compare metric depths.
             color_weight: lambda_1, weight of the colour loss.
             sparse_depth_weight: lambda_2, weight of DS-NeRF's sparse-depth loss (used when the data module serves
                 sparse-depth rays, `sparse_rays_per_batch` > 0).

@@ -1,4 +1,4 @@
-"""Rescoring a tested run from its saved outputs with the current metric and mask definitions (README "Evaluation
+"""Rescoring a tested run from its saved outputs with the current metric and mask definitions (docs/evaluation.md "Evaluation
 protocol"), without rendering again.
 
 A `test` output folder holds each test frame's prediction (`rgb/<frame>.png`, 8-bit, which is all the metrics use;

@@ -1,5 +1,5 @@
-"""Rescoring a tested run from its saved outputs with the current metric and mask definitions (docs/evaluation.md "Evaluation
-protocol"), without rendering again.
+"""Rescoring a tested run from its saved outputs with the current metric and mask definitions
+(docs/evaluation.md), without rendering again.
 
 A `test` output folder holds each test frame's prediction (`rgb/<frame>.png`, 8-bit, which is all the metrics use;
 `depth/<frame>.npy`, scene units), the visibility mask it was scored over (`mask/<frame>.png`) and `metrics.csv`

@@ -1,11 +1,10 @@
 """The authors' release, run in this process: its published config, trainer, model and data, imported from a copy.
 
 Nothing of the release is copied here. `import_release` puts its `src/` on `sys.path` (no bytecode is written into
-it), `published_config` captures the dict that its own `NerfLlffTrainerTester01.demo1a()` (2-view LLFF) or
-`RealEstateTrainerTester01.demo1a()` builds and passes to `start_training`, and `build_trainer` builds what its
+it; its published configs are captured by `data.release_config`), and `build_trainer` builds what its
 `Trainer01.start_training` builds (data loader, data preprocessor, model, loss computer, Adam, learning-rate decayer,
 `Trainer01.Trainer`), without its training loop. The release's paths are relative (`../data`, `../runs`), so the
-process works in `<run_root>/src` of a layout made by `../shared/tools/official_timing/build_layout.py` (LLFF).
+process works in `<run_root>/src` of a layout made by `layouts.build_llff_layout`.
 """
 
 from __future__ import annotations
@@ -34,33 +33,6 @@ def import_release(release_src: Path) -> None:
     skvideo.io = types.ModuleType("skvideo.io")
     sys.modules.setdefault("skvideo", skvideo)
     sys.modules.setdefault("skvideo.io", skvideo.io)
-
-
-def published_config(dataset: str = "llff") -> dict:
-    """The train config dict of the release's `demo1a()` for its first scene (fern; the RealEstate-10K entry's first
-    scene), captured at its `start_training` call, not a hand copy."""
-    import importlib
-
-    entry = importlib.import_module("NerfLlffTrainerTester01" if dataset == "llff" else "RealEstateTrainerTester01")
-    captured = {}
-
-    class Captured(Exception):
-        pass
-
-    def capture(train_configs):
-        captured["cfg"] = train_configs
-        raise Captured
-
-    saved = entry.start_training, entry.start_testing
-    entry.start_training = capture
-    entry.start_testing = lambda *a, **k: None
-    try:
-        entry.demo1a()
-    except Captured:
-        pass
-    finally:
-        entry.start_training, entry.start_testing = saved
-    return captured["cfg"]
 
 
 @contextmanager

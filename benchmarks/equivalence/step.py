@@ -22,7 +22,7 @@ import torch
 
 from benchmarks.equivalence import randomness
 from benchmarks.equivalence.report import Row, compare, exact
-from benchmarks.equivalence.weights import paired
+from benchmarks.equivalence.weights import paired, release_to_ours
 
 # Release loss names -> our logged term (summed where several release losses make one of ours).
 TERMS = {
@@ -84,11 +84,6 @@ def train_views(batch: dict):
     from simplenerf.geometry.views import Views
 
     common = batch["common_data"]
-
-    def tensor(x):
-        x = torch.as_tensor(x)
-        return x[0] if x.ndim == 4 and x.shape[0] == 1 and "images" not in str(x.shape) else x
-
     poses, images, intrinsics = (torch.as_tensor(common[k]) for k in ("poses", "images", "intrinsics"))
     if images.ndim == 5:  # repeated per GPU by `load_cached_next_batch`
         poses, images, intrinsics = poses[0], images[0], intrinsics[0]
@@ -218,7 +213,6 @@ def run_our_step(module, batch, draws: list[randomness.Draws], optimizer: torch.
         record.outputs.append(outputs)
         return renders
 
-    order = [pair for pair in ("points", "views", "cfc")]
     mask_calls: list[torch.Tensor] = []
 
     def capture_masked(z_main, z_other, mask, direction):
@@ -238,7 +232,7 @@ def run_our_step(module, batch, draws: list[randomness.Draws], optimizer: torch.
     finally:
         del module.nerf.evaluate, module.render, module.log_dict, module.log
         nerf_module.density, module_module.masked_depth_loss = density, masked
-    names = [n for n in order if n in module.loss_weights and module.loss_weights[n] > 0]
+    names = [n for n in ("points", "views", "cfc") if n in module.loss_weights and module.loss_weights[n] > 0]
     names = [n for n in names if n != "cfc" or module.coarse_fine_mask is not None]
     # One forward of random rays: one call per masked loss, in `depth_pairs` order.
     for i, mask in enumerate(mask_calls):
@@ -354,8 +348,6 @@ def step_rows(group: str, release: StepRecord, ours: StepRecord, release_model, 
             row.note = f"{moved} ray(s) with moved fine samples (rows above): 10x the tolerance"
         rows.append(row)
     # The Adam step: the update w_after - w_before of each parameter, relative to the largest update (about lr).
-    before = dict(release_model.named_parameters())
-    from benchmarks.equivalence.weights import release_to_ours
 
     for release_name, our_name in mapping.items():
         start = release_to_ours(release_name, release.weights_before[release_name])
@@ -366,5 +358,4 @@ def step_rows(group: str, release: StepRecord, ours: StepRecord, release_model, 
             row.passed, row.tolerance = True, "reported (float32)"
             row.note = "Adam's first update lr g / (|g| + eps) of a gradient element near eps; see the float64 run"
         rows.append(row)
-    del before
     return rows

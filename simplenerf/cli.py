@@ -51,9 +51,9 @@ from simplenerf.checks import (
 from simplenerf.console import PROG, HeldLogs, OneLineErrorParser, quiet_libraries
 from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged
 from simplenerf.evaluation.evaluator import Evaluator
-from simplenerf.evaluation.lpips import LPIPSWeightsNotFound
 from simplenerf.loggers import WandbLogger
 from simplenerf.memory import reuse_freed_memory
+from simplenerf.metrics.lpips import LPIPSWeightsNotFound
 from simplenerf.module import SimpleNeRF
 from simplenerf.resume import (
     TEST_KEYS,
@@ -396,8 +396,8 @@ def main(args: list[str] | None = None) -> None:
 
         run_tool(lambda: sweep(argv[1:]), PROG)
         return
-    if argv[:1] == ["process-data"]:  # photos -> an LLFF-layout scene (simplenerf.data.photos); not a Lightning command
-        from simplenerf.data.photos import main as process_data
+    if argv[:1] == ["process-data"]:  # photos -> an LLFF-layout scene (simplenerf.sfm.photos); not a Lightning command
+        from simplenerf.sfm.photos import main as process_data
 
         run_tool(lambda: process_data(argv[1:]), PROG)
         return

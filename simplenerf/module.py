@@ -18,12 +18,12 @@ from torch import nn
 
 from simplenerf.data.batches import Frame, RayBatch, SparseDepthBatch, TrainingBatch
 from simplenerf.errors import SimpleNeRFError
-from simplenerf.evaluation.metrics import psnr
 from simplenerf.geometry.rays import pixel_grid
 from simplenerf.geometry.views import Views
 from simplenerf.method.augmentations import Augmentation
 from simplenerf.method.losses import coarse_fine_sparse_loss, color_loss, psnr_of_mse, sparse_depth_loss
 from simplenerf.method.reliability import ReliabilityMask, mask_fractions, masked_depth_loss
+from simplenerf.metrics.scores import psnr
 from simplenerf.model.nerf import NeRF, NeRFOutputs
 from simplenerf.model.rendering import RenderOutputs
 from simplenerf.optim import ExponentialDecay, default_optimizer, parameter_groups

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from simplenerf.data.synthetic import make_synthetic_scene
+from simplenerf.synthetic.generate import make_synthetic_scene
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from simplenerf.data.process_checks import MARKER, judge
+from simplenerf.sfm.process_checks import MARKER, judge
 from tests.test_cli import REPO, run, run_args
 
 ERROR = "simplenerf: error: "
@@ -277,7 +277,7 @@ def test_earlier_results_that_cannot_be_moved_aside_stop_test_before_the_render(
 
 @pytest.fixture(scope="module")
 def photos(tmp_path_factory) -> Path:
-    from simplenerf.data.synthetic import make_synthetic_scene
+    from simplenerf.synthetic.generate import make_synthetic_scene
 
     root = make_synthetic_scene(tmp_path_factory.mktemp("photos") / "scene", height=240, width=320, n_frames=6)
     return root / "images"

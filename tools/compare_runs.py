@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from simplenerf.evaluation.compare import load_summaries, markdown_table, seed_table
+from simplenerf.reporting.compare import load_summaries, markdown_table, seed_table
 
 
 def main() -> None:

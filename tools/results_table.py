@@ -1,4 +1,4 @@
-"""Tested runs as a table in the layout of the paper's Tables 1-2 (logic: simplenerf/evaluation/tables.py and
+"""Tested runs as a table in the layout of the paper's Tables 1-2 (logic: simplenerf/reporting/tables.py and
 records.py), e.g.
 
     python tools/results_table.py SimpleNeRF='runs/llff/*' DS-NeRF=runs/dsnerf_fern_2v --paper llff --csv table.csv
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import sys
 
-from simplenerf.evaluation.tables import main
+from simplenerf.reporting.tables import main
 
 if __name__ == "__main__":
     sys.exit(main())

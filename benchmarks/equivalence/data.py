@@ -218,8 +218,8 @@ def our_sparse_depth(per_view: list[dict], intrinsics: torch.Tensor, c2w: torch.
     point is placed in our scene from its generating view: our ray there (`pixel_rays`) at its z-depth times our
     scale (float64; triangulating instead would amplify float32 camera round-off by depth / baseline, ~1e-4 on the
     RealEstate-10K clip). Returns `SparseDepth` per view and our projections uv of the points [per view]."""
-    from simplenerf.data.colmap import SparseDepth
     from simplenerf.geometry.rays import pixel_rays, project
+    from simplenerf.sfm.colmap import SparseDepth
 
     k64, c64 = intrinsics.double(), c2w.double()
     out, projections = [], []

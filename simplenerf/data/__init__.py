@@ -1,4 +1,4 @@
-"""Scenes and what the model is fed: formats (LLFF, RealEstate-10K, synthetic), splits, rays, batches, SfM depth.
+"""Scenes and what the model is fed: formats (LLFF, RealEstate-10K, the synthetic scene), splits, rays, batches.
 
 `simplenerf.data.LLFFDataModule` and `simplenerf.data.RealEstateDataModule` are resolved on first use, so importing
 the typed batches (`simplenerf.data.batches`) does not load the SfM machinery (pycolmap).

@@ -18,9 +18,9 @@ from jsonargparse.typing import NonNegativeInt, PositiveInt
 from torch.utils.data import DataLoader
 
 from simplenerf.data.datasets import Frames, RandomRays, SparseDepthPool
-from simplenerf.data.sparse_depth import load_or_compute_sparse_depth
 from simplenerf.errors import DataError
 from simplenerf.geometry.views import Views
+from simplenerf.sfm.sparse_depth import load_or_compute_sparse_depth
 
 
 @dataclass

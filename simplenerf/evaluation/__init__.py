@@ -1,1 +1,1 @@
-"""The evaluation protocol (SPEC 7): metrics, LPIPS, visibility masks, the test-time evaluator, tables, paper scores."""
+"""The evaluation protocol: the test-time evaluator, visibility masks, reference and held-out SfM depth, rescoring."""

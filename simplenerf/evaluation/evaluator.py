@@ -23,9 +23,9 @@ import torch
 
 from simplenerf.data.scene import Scene
 from simplenerf.errors import DataError, RunFolderError
-from simplenerf.evaluation.lpips import LPIPS
-from simplenerf.evaluation.metrics import MASKED_METRIC_NAMES, METRIC_NAMES, PSNR_CAP, frame_scores
 from simplenerf.evaluation.visibility import MIN_VIEWS, scene_visibility_masks
+from simplenerf.metrics.lpips import LPIPS
+from simplenerf.metrics.scores import MASKED_METRIC_NAMES, METRIC_NAMES, PSNR_CAP, frame_scores
 from simplenerf.viz.pictures import colorize_depth, write_mask_png, write_png
 
 METRICS = METRIC_NAMES

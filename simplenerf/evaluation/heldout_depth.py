@@ -12,9 +12,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from simplenerf.data.colmap import SparseDepth
 from simplenerf.data.scene import Scene
-from simplenerf.data.sparse_depth import load_or_compute_sparse_depth
+from simplenerf.sfm.colmap import SparseDepth
+from simplenerf.sfm.sparse_depth import load_or_compute_sparse_depth
 
 if TYPE_CHECKING:
     from simplenerf.module import SimpleNeRF

@@ -23,9 +23,9 @@ import torch
 from simplenerf.data.scene import Scene
 from simplenerf.errors import DataError
 from simplenerf.evaluation.evaluator import ALL_METRICS, summarize
-from simplenerf.evaluation.lpips import LPIPS
-from simplenerf.evaluation.metrics import frame_scores
 from simplenerf.evaluation.visibility import MIN_VIEWS, scene_visibility_masks
+from simplenerf.metrics.lpips import LPIPS
+from simplenerf.metrics.scores import frame_scores
 from simplenerf.viz.pictures import write_mask_png
 
 MASKS = ("saved", "new")

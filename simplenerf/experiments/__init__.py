@@ -6,7 +6,7 @@ results table, on a SLURM cluster or on this machine (`python -m simplenerf swee
     state.py      a job's state file in its folder (running / done / failed, steps, wall time)
     jobs.py       what a job does (`run_unit`), in the process its executor gives it
     executors.py  submitit: SLURM job arrays with afterok dependencies, local processes, or in-process (debug)
-    results.py    the results table beside the paper's rows (simplenerf.evaluation.tables)
+    results.py    the results table beside the paper's rows (simplenerf.reporting.tables)
     status.py     `sweep status SWEEP_DIR`
     command.py    the command line
 """

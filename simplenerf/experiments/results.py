@@ -1,4 +1,4 @@
-"""The sweep's results table: its tested runs in the layout of the paper's Tables 1-3 (`simplenerf.evaluation.tables`,
+"""The sweep's results table: its tested runs in the layout of the paper's Tables 1-3 (`simplenerf.reporting.tables`,
 the logic of tools/results_table.py), beside the published rows of the table the sweep file names per scene format,
 written to `<sweep>/results.md` and `<sweep>/results.csv` (long format, one line per value).
 """
@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from simplenerf.evaluation.records import coverage_warnings, load_records, mean_rows
-from simplenerf.evaluation.tables import (
+from simplenerf.reporting.records import coverage_warnings, load_records, mean_rows
+from simplenerf.reporting.tables import (
     caption,
     csv_rows,
     markdown_table,

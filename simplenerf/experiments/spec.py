@@ -137,7 +137,7 @@ class Sweep:
     executor: str = "local"
     """slurm, local (this machine, `resources.concurrent_jobs` at a time) or debug (in this process, one by one)."""
     tables: dict[str, str] = field(default_factory=dict)
-    """Per scene format, the paper's table the results sit beside (simplenerf.evaluation.paper_scores.TABLES: llff,
+    """Per scene format, the paper's table the results sit beside (simplenerf.reporting.paper_scores.TABLES: llff,
     realestate, llff-ablations, realestate-ablations)."""
     wandb: Wandb = field(default_factory=Wandb)
 
@@ -201,7 +201,7 @@ def _part(key: str, value):
 
 def check_values(sweep: Sweep, path: Path) -> None:
     """What the types cannot say: known formats and executor, positive counts, unique names."""
-    from simplenerf.evaluation.paper_scores import TABLES
+    from simplenerf.reporting.paper_scores import TABLES
 
     if sweep.executor not in EXECUTORS:
         raise SweepError(f"{path}: executor {sweep.executor!r} is not one of {', '.join(EXECUTORS)}")

@@ -1,1 +1,1 @@
-"""Camera geometry: rays of pixels, NDC, projection, and the posed train views (`Cameras`)."""
+"""Camera geometry: rays of pixels, NDC, projection, the posed views, camera alignment and camera paths for videos."""

@@ -37,5 +37,5 @@ def coarse_fine_sparse_loss(coarse: RenderOutputs, fine: RenderOutputs) -> torch
 @torch.no_grad()
 def psnr_of_mse(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """PSNR of float colours in [0, 1], -10 log10(MSE): a training / validation progress signal, not the 8-bit
-    evaluation metric (`simplenerf.evaluation.metrics.psnr`)."""
+    evaluation metric (`simplenerf.metrics.scores.psnr`)."""
     return -10.0 * torch.log10(torch.mean((rgb - target.to(rgb)) ** 2))

@@ -1,1 +1,1 @@
-"""Pictures and videos: colour maps and PNGs, validation renders, camera trajectories, spiral videos."""
+"""Pictures and videos: colour maps and PNGs, validation renders, videos along a camera path, geometry export."""

@@ -9,8 +9,8 @@ import numpy as np
 import torch
 from jsonargparse.typing import PositiveInt
 
-from simplenerf.evaluation.metrics import psnr
 from simplenerf.method.reliability import mask_fractions
+from simplenerf.metrics.scores import psnr
 from simplenerf.viz.pictures import (
     colorize_depth,
     colorize_error,

@@ -22,9 +22,9 @@ from jsonargparse.typing import NonNegativeInt, PositiveInt
 from tqdm import tqdm
 
 from simplenerf.geometry.rays import RayBundle, make_rays, pixel_grid
+from simplenerf.geometry.trajectories import TrajectoryKind, scene_trajectory
 from simplenerf.model.nerf import NeRF
 from simplenerf.viz.pictures import colorize_depth
-from simplenerf.viz.trajectories import TrajectoryKind, scene_trajectory
 
 
 def frame_rays(c2w: torch.Tensor, intrinsics: torch.Tensor, height: int, width: int, near: float) -> RayBundle:

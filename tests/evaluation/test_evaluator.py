@@ -28,10 +28,10 @@ from simplenerf.evaluation.evaluator import (
     summarize,
     write_mask_png,
 )
-from simplenerf.evaluation.metrics import PSNR_CAP
 from simplenerf.evaluation.visibility import scene_visibility_masks
+from simplenerf.metrics.scores import PSNR_CAP
 from tests.conftest import REPO, shared_dir
-from tests.evaluation.test_metrics import lpips_weights
+from tests.metrics.test_scores import lpips_weights
 from tests.test_cli import run, run_args
 
 SUMMARY_KEYS = ["scene", "n_views", "frames", *ALL_METRICS, "checkpoint", "git_commit", "config"]

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from simplenerf.data.colmap import SparseDepth
 from simplenerf.data.synthetic import SyntheticDataModule
 from simplenerf.evaluation.heldout_depth import heldout_depth_error
+from simplenerf.sfm.colmap import SparseDepth
 from tests.test_module import simplenerf_module
 
 

@@ -14,9 +14,9 @@ import torch
 from simplenerf.data.llff import load_llff_scene
 from simplenerf.errors import DataError
 from simplenerf.evaluation.evaluator import ALL_METRICS
-from simplenerf.evaluation.metrics import PSNR_CAP, frame_scores
 from simplenerf.evaluation.rescore import comparison_table, find_test_folder, read_rgb, rescore_run
 from simplenerf.evaluation.visibility import scene_visibility_masks
+from simplenerf.metrics.scores import PSNR_CAP, frame_scores
 from simplenerf.viz.pictures import write_mask_png, write_png
 from tests.conftest import REPO
 

@@ -9,7 +9,6 @@ import scipy.ndimage
 import torch
 
 from simplenerf.data.llff import load_llff_scene
-from simplenerf.data.synthetic import build_scene, trace_rays, trace_view
 from simplenerf.evaluation.visibility import (
     RELATIVE_TOLERANCE,
     SNAP,
@@ -21,6 +20,7 @@ from simplenerf.evaluation.visibility import (
     visibility_mask,
 )
 from simplenerf.geometry.rays import pixel_rays, project
+from simplenerf.synthetic.generate import build_scene, trace_rays, trace_view
 
 # ---------------------------------------------------------------------------------------------------------------------
 # A hand-made scene: three cameras with identity rotation at x = 0 (test), +1 (A) and -1 (B), all at y = z = 0 and

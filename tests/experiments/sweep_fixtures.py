@@ -8,7 +8,7 @@ from pathlib import Path
 import yaml
 from lightning.pytorch import Callback
 
-from simplenerf.data.synthetic import make_synthetic_scene
+from simplenerf.synthetic.generate import make_synthetic_scene
 from tests.conftest import REPO
 from tests.test_cli import shrink
 

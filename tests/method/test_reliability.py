@@ -10,7 +10,6 @@ import torch
 
 from simplenerf.data.batches import RayBatch
 from simplenerf.data.llff import load_llff_scene, subset
-from simplenerf.data.synthetic import make_synthetic_scene
 from simplenerf.geometry.rays import RayBundle, pixel_rays, project
 from simplenerf.geometry.views import Views
 from simplenerf.method.reliability import (
@@ -22,6 +21,7 @@ from simplenerf.method.reliability import (
     patch_reprojection_error,
     ternary_mask,
 )
+from simplenerf.synthetic.generate import make_synthetic_scene
 
 K = 5  # the paper's patch size
 THRESHOLD = 0.1

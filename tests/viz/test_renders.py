@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from simplenerf.evaluation.metrics import psnr
+from simplenerf.metrics.scores import psnr
 from simplenerf.viz.renders import (
     KINDS,
     ValidationRenders,

@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from simplenerf.data.llff import load_llff_scene
+from simplenerf.geometry.trajectories import scene_trajectory
 from simplenerf.model.nerf import NeRF, mlp_nerf
-from simplenerf.viz.trajectories import scene_trajectory
 from simplenerf.viz.video import compose_frame, depth_colour_range, downscale_intrinsics, frame_rays, render_video
 from tests.conftest import REPO
 

@@ -1,5 +1,5 @@
 """The synthetic scene's description: textures, planes, cameras and the "planes" kind of scene (see
-`simplenerf.data.synthetic` for the whole convention); the "objects" kind is `simplenerf.data.synthetic_objects`."""
+`simplenerf.synthetic.generate` for the whole convention); the "objects" kind is `simplenerf.synthetic.objects`."""
 
 from __future__ import annotations
 

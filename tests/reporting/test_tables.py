@@ -8,9 +8,9 @@ import sys
 import pytest
 
 from simplenerf.errors import DataError
-from simplenerf.evaluation import paper_scores
-from simplenerf.evaluation.records import KEYS, RELEASE_MODEL, expand_runs, load_records, mean_rows
-from simplenerf.evaluation.tables import main
+from simplenerf.reporting import paper_scores
+from simplenerf.reporting.records import KEYS, RELEASE_MODEL, expand_runs, load_records, mean_rows
+from simplenerf.reporting.tables import main
 from tests.conftest import REPO, require_shared
 
 # (model, scene, views) -> masked LPIPS, SSIM, PSNR, full-frame LPIPS, SSIM, PSNR, masked depth MAE, SROCC.

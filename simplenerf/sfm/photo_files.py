@@ -14,8 +14,8 @@ import numpy as np
 import pycolmap
 from PIL import Image, ImageOps, UnidentifiedImageError
 
-from simplenerf.data.sfm import ADVICE
 from simplenerf.errors import DataError
+from simplenerf.sfm.mapping import ADVICE
 
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 _EXIF_IFD, _FOCAL_35MM, _FOCAL, _PLANE_X_RES, _PLANE_UNIT, _PIXEL_X = 0x8769, 0xA405, 0x920A, 0xA20E, 0xA210, 0xA002

@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass
 import torch
 import torch.nn.functional as F
 
-from simplenerf.evaluation.lpips import LPIPS
+from simplenerf.metrics.lpips import LPIPS
 
 PSNR_CAP = 100.0
 """PSNR (dB) reported for a frame (or masked region) whose quantised prediction equals the quantised target."""

@@ -6,8 +6,8 @@ photos, small baselines: the few-view case), mapping is retried with relaxed ini
 thresholds (`DEFAULT_ATTEMPTS`), and the attempt that registers the most photos (then the most points) wins. Photos
 without verified matches to any other cannot register and are not waited for.
 
-Conventions are COLMAP's (world-to-camera poses, OpenCV axes, pixel centres at +0.5); `simplenerf.data.photos` turns
-the result into the LLFF layout. `simplenerf.data.colmap` holds the stages of SfM with KNOWN poses (sparse depth).
+Conventions are COLMAP's (world-to-camera poses, OpenCV axes, pixel centres at +0.5); `simplenerf.sfm.photos` turns
+the result into the LLFF layout. `simplenerf.sfm.colmap` holds the stages of SfM with KNOWN poses (sparse depth).
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ import numpy as np
 import pycolmap
 from tqdm import tqdm
 
-from simplenerf.data.colmap import colmap_log_level, colmap_stage
 from simplenerf.errors import DataError
+from simplenerf.sfm.colmap import colmap_log_level, colmap_stage
 
 ADVICE = (
     "Try photos with more overlap (each part of the scene in 3 or more photos, taken a step apart rather than "

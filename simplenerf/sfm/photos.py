@@ -4,7 +4,7 @@ Steps:
 1. Read every photo (JPEG, PNG, TIFF, BMP, WebP) with its EXIF orientation applied and its EXIF focal length (35 mm
    equivalent, else focal length x focal-plane resolution) as a prior; bring photos of other sizes to the most
    common size (centre crop to its aspect ratio, then resize).
-2. Structure from motion (`simplenerf.data.sfm`): SIFT, exhaustive matching, incremental mapping with relaxed
+2. Structure from motion (`simplenerf.sfm.mapping`): SIFT, exhaustive matching, incremental mapping with relaxed
    retries.
 3. Undistort the registered photos to a pinhole camera with the principal point at the image centre and square
    pixels (what the LLFF loader assumes), at the common size, zoomed just enough to leave no blank border.
@@ -40,9 +40,12 @@ import pycolmap
 from PIL import Image, UnidentifiedImageError
 from tqdm import tqdm
 
-from simplenerf.data.colmap import GL_TO_CV
 from simplenerf.data.llff import poses_to_opengl
-from simplenerf.data.photo_files import (
+from simplenerf.errors import DataError
+from simplenerf.geometry.alignment import CameraAlignment, align_cameras
+from simplenerf.sfm.colmap import GL_TO_CV
+from simplenerf.sfm.mapping import ADVICE, CAMERA_MODELS, SfMResult, run_sfm
+from simplenerf.sfm.photo_files import (
     common_size,
     downscaled_size,
     find_photos,
@@ -51,11 +54,8 @@ from simplenerf.data.photo_files import (
     undistort,
     undistortion,
 )
-from simplenerf.data.process_checks import MARKER, check_output_folder, check_writable_parent, judge, replace_output
-from simplenerf.data.sfm import ADVICE, CAMERA_MODELS, SfMResult, run_sfm
-from simplenerf.errors import DataError
-from simplenerf.geometry.alignment import CameraAlignment, align_cameras
-from simplenerf.viz.sfm_view import top_view_picture
+from simplenerf.sfm.process_checks import MARKER, check_output_folder, check_writable_parent, judge, replace_output
+from simplenerf.sfm.top_view import top_view_picture
 
 BOUND_PERCENTILES = (0.1, 99.9)  # LLFF's pose_utils.save_poses: np.percentile(zs, .1), np.percentile(zs, 99.9)
 def opengl_c2w_of_image(image: pycolmap.Image) -> np.ndarray:
@@ -121,7 +121,7 @@ def process_photos(
         output_dir: the scene folder to create (e.g. data/my_scene); must not exist unless `overwrite`.
         factors: downscaling factors N written as images_N/ (the loader's `factor`; 1 is images/ itself).
         shared_camera: one camera for all photos (the same camera and zoom); False: one camera per photo.
-        camera_model: COLMAP camera model (simplenerf.data.sfm.CAMERA_MODELS); distortion is removed from the output.
+        camera_model: COLMAP camera model (simplenerf.sfm.mapping.CAMERA_MODELS); distortion is removed from the output.
         max_size: if given, photos are downscaled so their longer side is at most this (before everything else).
         sift_max_size: SIFT runs on photos downscaled to at most this longer side.
         max_num_features: SIFT keypoints per photo.

@@ -6,8 +6,8 @@ import torch
 
 from simplenerf.data.llff import average_pose, load_llff_scene, subset
 from simplenerf.data.scene import Scene, Split
+from simplenerf.geometry.trajectories import llff_spiral, recorded_trajectory, scene_trajectory, spiral_focus_depth
 from simplenerf.geometry.views import Views
-from simplenerf.viz.trajectories import llff_spiral, recorded_trajectory, scene_trajectory, spiral_focus_depth
 
 # Four axis-aligned cameras (identity rotation) around the origin: the average pose is the identity.
 POSITIONS = torch.tensor([[-0.2, 0.1, 0.02], [0.2, -0.1, -0.02], [0.1, 0.05, 0.04], [-0.1, -0.05, -0.04]],

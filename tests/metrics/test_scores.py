@@ -1,4 +1,4 @@
-"""Tests of simplenerf.evaluation.metrics against hand-computed values, a slow SSIM reference and scipy."""
+"""Tests of simplenerf.metrics.scores against hand-computed values, a slow SSIM reference and scipy."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import scipy.ndimage
 import scipy.stats
 import torch
 
-from simplenerf.evaluation.lpips import LPIPS, WEIGHTS_ENV
-from simplenerf.evaluation.metrics import (
+from simplenerf.metrics.lpips import LPIPS, WEIGHTS_ENV
+from simplenerf.metrics.scores import (
     MASKED_METRIC_NAMES,
     METRIC_NAMES,
     PSNR_CAP,

@@ -1,10 +1,10 @@
 """COLMAP in-process (pycolmap 4.x): the conventions between our cameras and COLMAP's, and the stages of SfM with
-known poses that `simplenerf.data.sparse_depth` runs (SIFT, exhaustive matching, verified-pair diagnostics,
+known poses that `simplenerf.sfm.sparse_depth` runs (SIFT, exhaustive matching, verified-pair diagnostics,
 triangulation with the poses held fixed, collecting per-view depths).
 
 Conventions: COLMAP uses OpenCV axes (x right, y down, z forward), world-to-camera poses, and puts the centre of pixel
 index u at the continuous coordinate u + 0.5; ours are OpenGL c2w and pixel centres at integers (see
-`simplenerf.data.sparse_depth`).
+`simplenerf.sfm.sparse_depth`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import pycolmap
 
 from simplenerf.errors import SimpleNeRFError
 
-logger = logging.getLogger("simplenerf.data.sparse_depth")
+logger = logging.getLogger("simplenerf.sfm.sparse_depth")
 
 # OpenGL camera axes (right, up, back) -> OpenCV/COLMAP axes (right, down, forward).
 GL_TO_CV = np.diag([1.0, -1.0, -1.0])

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from simplenerf.data import synthetic as sy
+from simplenerf.synthetic import generate as sy
 
 H, W = 48, 64  # small full resolution keeps the on-disk tests fast
 

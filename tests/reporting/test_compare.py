@@ -2,7 +2,7 @@ import json
 
 import pytest
 
-from simplenerf.evaluation.compare import load_summaries, markdown_table, seed_table
+from simplenerf.reporting.compare import load_summaries, markdown_table, seed_table
 
 
 def test_table_of_two_runs(tmp_path):

@@ -1,4 +1,4 @@
-"""Own photos -> LLFF layout (simplenerf.data.photos, simplenerf.data.sfm): photo reading, the pose file convention,
+"""Own photos -> LLFF layout (simplenerf.sfm.photos, simplenerf.sfm.mapping): photo reading, the pose file convention,
 undistortion, and structure from motion checked against exact (synthetic) and official (LLFF fern) cameras."""
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from PIL.TiffImagePlugin import IFDRational
 
 from simplenerf.cli import main as cli_main
 from simplenerf.data.llff import load_llff_scene, poses_to_opengl
-from simplenerf.data.photo_files import common_size, exif_focal_pixels, fit_to_size, read_photo, undistort, undistortion
-from simplenerf.data.photos import compare_with_reference, process_photos, to_poses_bounds
-from simplenerf.data.synthetic import make_synthetic_scene
 from simplenerf.errors import DataError
+from simplenerf.sfm.photo_files import common_size, exif_focal_pixels, fit_to_size, read_photo, undistort, undistortion
+from simplenerf.sfm.photos import compare_with_reference, process_photos, to_poses_bounds
+from simplenerf.synthetic.generate import make_synthetic_scene
 from tests.conftest import require_shared
 
 FERN = "data/nerf_llff_data/fern"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simplenerf.viz.sfm_view import top_view_picture
+from simplenerf.sfm.top_view import top_view_picture
 
 
 def test_points_in_front_are_above_the_cameras_and_keep_their_colour() -> None:

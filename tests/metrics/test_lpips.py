@@ -1,4 +1,4 @@
-"""Tests of evaluation.lpips: published LPIPS v0.1 values, weight lookup order and the missing-weights error."""
+"""Tests of metrics.lpips: published LPIPS v0.1 values, weight lookup order and the missing-weights error."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from simplenerf.evaluation import lpips as lpips_module
-from simplenerf.evaluation.lpips import ALEXNET_FILENAME, LPIPS, WEIGHTS_ENV, LPIPSWeightsNotFound
+from simplenerf.metrics import lpips as lpips_module
+from simplenerf.metrics.lpips import ALEXNET_FILENAME, LPIPS, WEIGHTS_ENV, LPIPSWeightsNotFound
 from tests.conftest import require_shared
 
 # Values printed by the reference implementation's test script for net='alex', version 0.1.

@@ -1,6 +1,6 @@
-"""Tests of data.sparse_depth: COLMAP's pixel convention, pose conversion, exact synthetic depths, errors, cache.
+"""Tests of sfm.sparse_depth: COLMAP's pixel convention, pose conversion, exact synthetic depths, errors, cache.
 
-The synthetic scene (simplenerf.data.synthetic) has exact depth maps, so the triangulated depths are checked against
+The synthetic scene (simplenerf.synthetic.generate) has exact depth maps, so the triangulated depths are checked against
 ground truth, and the same 3D point seen in two views is checked to reproject onto its keypoint with our own camera
 model (simplenerf.geometry.rays), which catches any half-pixel or axis mistake in the conversion to COLMAP.
 """
@@ -15,12 +15,12 @@ import pycolmap
 import pytest
 import torch
 
-import simplenerf.data.sparse_depth as sparse_depth_module
-from simplenerf.data.colmap import SparseDepth, SparseDepthError, colmap_cam_from_world, colmap_pinhole_params
+import simplenerf.sfm.sparse_depth as sparse_depth_module
 from simplenerf.data.llff import load_llff_scene, subset
-from simplenerf.data.sparse_depth import compute_sparse_depth, load_or_compute_sparse_depth
-from simplenerf.data.synthetic import make_synthetic_scene
 from simplenerf.geometry.rays import pixel_rays, project
+from simplenerf.sfm.colmap import SparseDepth, SparseDepthError, colmap_cam_from_world, colmap_pinhole_params
+from simplenerf.sfm.sparse_depth import compute_sparse_depth, load_or_compute_sparse_depth
+from simplenerf.synthetic.generate import make_synthetic_scene
 from tests.conftest import require_shared
 
 # SIFT needs more pixels than the 48x64 default test scene: at 240x320 it finds a few hundred points per view pair.
@@ -208,7 +208,7 @@ def test_only_essential_matrix_poses_are_compared_with_the_given_poses():
     """A planar pair's relative pose comes from an ambiguous homography decomposition: no pose warning from it."""
     from types import SimpleNamespace
 
-    from simplenerf.data.colmap import comparable
+    from simplenerf.sfm.colmap import comparable
 
     config = pycolmap.TwoViewGeometryConfiguration
     pair = dict(cam2_from_cam1=pycolmap.Rigid3d(), inlier_matches=np.zeros((10, 2)))

@@ -38,7 +38,7 @@ from typing import Any, BinaryIO
 import numpy as np
 from numpy.typing import ArrayLike
 
-from simplenerf.data.colmap import (
+from simplenerf.sfm.colmap import (
     ADVICE,
     SparseDepth,
     SparseDepthError,
@@ -86,7 +86,7 @@ def compute_sparse_depth(
         max_reprojection_error: pixels; points with a larger error in any observation are dropped (COLMAP: 4).
         seed: seed of COLMAP's RANSAC, for reproducible results.
         num_threads: CPU threads for COLMAP (-1: all cores).
-        progress: log the stages (logger `simplenerf.data.sparse_depth`) and let COLMAP print its own log.
+        progress: log the stages (logger `simplenerf.sfm.sparse_depth`) and let COLMAP print its own log.
 
     Returns:
         One `SparseDepth` per view, in input order, sorted by 3D point id.

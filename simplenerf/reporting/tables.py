@@ -25,8 +25,8 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from simplenerf.errors import DataError
-from simplenerf.evaluation.paper_scores import TABLES
-from simplenerf.evaluation.records import (
+from simplenerf.reporting.paper_scores import TABLES
+from simplenerf.reporting.records import (
     DEPTH_METRICS,
     METRICS,
     Record,

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from simplenerf.data.synthetic_scene import BACKGROUND_Z, ImageTexture, Plane, _rotation_xy
+from simplenerf.synthetic.scene import BACKGROUND_Z, ImageTexture, Plane, _rotation_xy
 
 TEXEL_DENSITY = 480.0
 TEXEL_BLUR = 2.0

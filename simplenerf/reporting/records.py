@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from simplenerf.errors import DataError
-from simplenerf.evaluation.paper_scores import RELEASE_VIEWS, is_release_folder, read_release_folder
+from simplenerf.reporting.paper_scores import RELEASE_VIEWS, is_release_folder, read_release_folder
 
 METRICS = ("lpips", "ssim", "psnr")
 DEPTH_METRICS = ("depth_mae", "depth_srocc")

@@ -41,7 +41,7 @@ from benchmarks.equivalence.weights import copy_release_weights  # noqa: E402
 
 def our_module(config: Path, scene_dir: Path, views: int, factor: int):
     """Our SimpleNeRF from the paper config, with the release-faithful switches (module docstring)."""
-    from simplenerf.cli import make_cli
+    from simplenerf.lightning_cli import make_cli
 
     args = ["--config", str(config), "--data.init_args.scene_dir", str(scene_dir), "--data.init_args.n_views",
             str(views), "--data.init_args.factor", str(factor), "--model.rays_per_backward", "null",

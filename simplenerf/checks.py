@@ -1,18 +1,64 @@
 """Checks a run passes before it starts, so that it can be trusted: the checkpoint it starts from (exists, loads, fits
 the model), the run folder (writable; a fresh `fit` does not overwrite another run's checkpoints) and what the model
-needs of the data. Each failure is a `SimpleNeRFError` the command line prints as one line."""
+needs of the data. Each failure is a `SimpleNeRFError` the command line prints as one line.
+
+The parts of a run declare their own pre-flight checks by a protocol (`ChecksModel`, `ChecksInputs`,
+`ChecksOutputs`): the CLI runs those of the data module and of every callback (`preflight_inputs`,
+`preflight_outputs`) before loggers or outputs create anything. A user's callback takes part by defining the method.
+"""
 
 from __future__ import annotations
 
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Protocol, runtime_checkable
 
+import lightning as L
 import torch
 from lightning.pytorch.utilities import rank_zero_only
 
 from simplenerf.errors import CheckpointError, DataError, RunFolderError
+from simplenerf.module import SimpleNeRF
+
+
+@runtime_checkable
+class ChecksModel(Protocol):
+    """A part of a run (e.g. a loss-weight schedule) that checks the model has what it works on."""
+
+    def check_model(self, model: L.LightningModule) -> None: ...
+
+
+@runtime_checkable
+class ChecksInputs(Protocol):
+    """A part of a run (the data module, the evaluator) that reads and checks what `stage` needs (the scene, LPIPS
+    weights) before anything is written."""
+
+    def check_inputs(self, stage: str) -> None: ...
+
+
+@runtime_checkable
+class ChecksOutputs(Protocol):
+    """A part of a run (the evaluator) that checks it can write its outputs (e.g. no earlier results in the way)."""
+
+    def check_outputs(self, trainer: L.Trainer, stage: str) -> None: ...
+
+
+def preflight_inputs(parts: list[object], model: L.LightningModule, stage: str) -> None:
+    """Every part's model checks, then every part's input checks, in the order of `parts` (data module first)."""
+    for part in parts:
+        if isinstance(part, ChecksModel):
+            part.check_model(model)
+    for part in parts:
+        if isinstance(part, ChecksInputs):
+            part.check_inputs(stage)
+
+
+def preflight_outputs(parts: list[object], trainer: L.Trainer, stage: str) -> None:
+    """Every part's output checks (once the run folder is known to be writable)."""
+    for part in parts:
+        if isinstance(part, ChecksOutputs):
+            part.check_outputs(trainer, stage)
 
 SPECIAL_CHECKPOINTS = ("best", "hpc")  # Lightning's own meanings of --ckpt_path, passed through unchecked
 
@@ -145,15 +191,15 @@ def check_writable(folders: list[Path]) -> None:
             raise RunFolderError(f"cannot write to the run folder {folder}: {e.strerror or e}") from None
 
 
-def check_model_meets_data(model: Any, n_train: int | None, stage: str) -> None:
+def check_model_meets_data(model: SimpleNeRF, n_train: int | None, stage: str) -> None:
     """What the model needs of the data at fit start: the reliability masks of the augmentations and of L_cfc
     reproject depth into another train view, so they need at least 2 train views (`n_train`; None: not known)."""
     if stage != "fit" or n_train is None:
         return
     parts = []
-    if len(getattr(model, "augmentations", None) or []):
+    if len(model.augmentations):
         parts.append("augmentations")
-    if getattr(model, "coarse_fine_mask", None) is not None:
+    if model.coarse_fine_mask is not None:
         parts.append("coarse_fine_mask")
     if parts and n_train < 2:
         raise DataError(

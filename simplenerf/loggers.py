@@ -35,7 +35,7 @@ class WandbLogger(_LightningWandbLogger):
         self,
         project: str = "simplenerf",
         name: str | None = None,
-        save_dir: str = "runs",
+        save_dir: str | None = None,
         offline: bool | None = None,
         log_model: bool = False,
         group: str | None = None,
@@ -46,7 +46,8 @@ class WandbLogger(_LightningWandbLogger):
         Args:
             project: W&B project.
             name: run name shown in W&B.
-            save_dir: folder for the local W&B files.
+            save_dir: folder for the local W&B files; null: the run folder (`trainer.default_root_dir`), which the
+                CLI sets (`use_run_folder`).
             offline: force offline/online; None: online only if credentials exist or WANDB_MODE says so.
             log_model: upload checkpoints as W&B artifacts.
             group: W&B group (a sweep's runs share one, `simplenerf.experiments`).
@@ -65,6 +66,13 @@ class WandbLogger(_LightningWandbLogger):
         )
         # Lightning passes anonymous=None, which W&B answers with a deprecation warning at every start.
         self._wandb_init.pop("anonymous", None)
+
+    def use_run_folder(self, folder: str | Path) -> None:
+        """Keeps the W&B files in the run folder `folder` unless `save_dir` named another (the CLI calls this once the
+        trainer exists, so a run's folder is one setting, `trainer.default_root_dir`)."""
+        if self._save_dir is None:
+            self._save_dir = os.fspath(folder)
+            self._wandb_init["dir"] = self._save_dir
 
     @property
     def experiment(self):

@@ -23,6 +23,8 @@ import numpy as np
 import torch
 from lightning.fabric.utilities.seed import _collect_rng_states, _set_rng_states
 
+from simplenerf.data.scene import SceneDataModule
+
 RECORD_KEY = "simplenerf_run"
 
 # Data settings that do not change what a run trains on: where files are found or cached (the scene itself is
@@ -52,10 +54,9 @@ def run_settings(config: Any, datamodule: Any) -> dict[str, Any]:
         "data": {k: v for k, v in init_args.items() if k not in IGNORED_DATA},
         "model": {k: v for k, v in (config.get("model") or {}).items() if k not in IGNORED_MODEL},
     }
-    if hasattr(datamodule, "cache_key"):
+    if isinstance(datamodule, SceneDataModule) and datamodule.scene is not None:
+        scene = datamodule.scene
         settings["scene"] = datamodule.cache_key()
-    scene = getattr(datamodule, "scene", None)
-    if scene is not None:
         settings["train_frames"] = list(scene.split.train)
         settings["size"] = [int(scene.views.height), int(scene.views.width)]
     return _plain(settings)

@@ -14,7 +14,7 @@ import pytest
 import torch
 import yaml
 
-from simplenerf.cli import load_for_tool
+from simplenerf.lightning_cli import load_for_tool
 from tests.conftest import REPO, shared_dir
 
 SMALL = [

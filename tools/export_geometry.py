@@ -17,7 +17,8 @@ from pathlib import Path
 
 import torch
 
-from simplenerf.cli import load_for_tool, run_tool, split_overrides
+from simplenerf.cli import run_tool, split_overrides
+from simplenerf.lightning_cli import load_for_tool
 from simplenerf.viz.export import export_geometry
 
 

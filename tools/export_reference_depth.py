@@ -16,8 +16,9 @@ import sys
 
 import torch
 
-from simplenerf.cli import load_for_tool, run_tool, split_overrides
+from simplenerf.cli import run_tool, split_overrides
 from simplenerf.evaluation.reference_depth import export_reference_depth
+from simplenerf.lightning_cli import load_for_tool
 
 
 def main() -> None:

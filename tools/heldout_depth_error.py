@@ -16,8 +16,9 @@ import json
 import sys
 from pathlib import Path
 
-from simplenerf.cli import load_for_tool, run_tool, split_overrides
+from simplenerf.cli import run_tool, split_overrides
 from simplenerf.evaluation.heldout_depth import heldout_depth_error, heldout_observations
+from simplenerf.lightning_cli import load_for_tool
 
 
 def main() -> None:
@@ -30,7 +31,7 @@ def main() -> None:
     args = parser.parse_args(own)
     cli = load_for_tool([args.config], overrides, ckpt=args.ckpt)
     dm, model = cli.datamodule, cli.model
-    observations = heldout_observations(dm.scene, args.cache, str(dm.scene_dir.resolve()))
+    observations = heldout_observations(dm.scene, args.cache, str(dm.scene.source.resolve()))
     result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk)
     line = json.dumps({"ckpt": args.ckpt, "overrides": overrides, **result})
     print(line)

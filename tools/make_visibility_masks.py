@@ -16,9 +16,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from simplenerf.cli import load_for_tool, run_tool, split_overrides
+from simplenerf.cli import run_tool, split_overrides
 from simplenerf.evaluation.evaluator import export_visibility_masks
 from simplenerf.evaluation.visibility import MIN_VIEWS
+from simplenerf.lightning_cli import load_for_tool
 
 
 def main() -> None:
@@ -31,7 +32,7 @@ def main() -> None:
     cli = load_for_tool([args.config], overrides)
     dm = cli.datamodule
     out = Path(args.out or Path(cli.trainer.default_root_dir) / "visibility")
-    fractions = export_visibility_masks(dm.scene, out, args.min_views, getattr(dm, "scene_dir", None))
+    fractions = export_visibility_masks(dm.scene, out, args.min_views)
     print(f"visibility masks of {len(fractions)} test frames (train frames {dm.scene.split.train}) in {out}:")
     for name, fraction in fractions.items():
         print(f"  {name}: {100 * fraction:.1f}% visible")

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import sys
 
-from simplenerf.cli import make_cli, run_tool
+from simplenerf.cli import run_tool
+from simplenerf.lightning_cli import make_cli
 
 
 def main() -> None:

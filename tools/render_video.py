@@ -4,7 +4,7 @@
         -- --data.init_args.scene_dir data/nerf_llff_data/fern
 
 Paths: `spiral` (LLFF: 120 frames, 2 rotations around the train views) or `recorded` (RealEstate-10K: the clip's
-own cameras). Default: the data module's `video_trajectory` attribute if it has one, else `spiral`. Everything
+own cameras). Default: the scene's `camera_path` (LLFF: `spiral`, RealEstate-10K: `recorded`). Everything
 after `--` is passed to the CLI as overrides. Writes <trainer.default_root_dir>/video_<path>.mp4 unless --out.
 The depth colour range used is printed; give it to another model's video with --depth-range to compare the two.
 """
@@ -17,7 +17,8 @@ from pathlib import Path
 
 import torch
 
-from simplenerf.cli import load_for_tool, run_tool, split_overrides
+from simplenerf.cli import run_tool, split_overrides
+from simplenerf.lightning_cli import load_for_tool
 from simplenerf.viz.video import render_scene_video
 
 
@@ -41,7 +42,7 @@ def main() -> None:
     own, overrides = split_overrides(sys.argv[1:])
     args = parse_args(own)
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt, device=args.device)
-    kind = args.path or getattr(cli.datamodule, "video_trajectory", "spiral")
+    kind = args.path or cli.datamodule.scene.camera_path
     out = args.out or Path(cli.trainer.default_root_dir) / f"video_{kind}.mp4"
     written, n, width, height, kind, (closest, farthest) = render_scene_video(
         cli.model, cli.datamodule, out, kind, args.frames, args.rotations, args.factor_down, args.fps,

@@ -18,9 +18,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from simplenerf.cli import load_for_tool, run_tool, split_overrides
+from simplenerf.cli import run_tool, split_overrides
 from simplenerf.evaluation.rescore import comparison_table, find_test_folder, rescore_run
 from simplenerf.evaluation.visibility import MIN_VIEWS
+from simplenerf.lightning_cli import load_for_tool
 from simplenerf.metrics.lpips import LPIPS
 
 # Keys of a `test` config that describe that run, not the model or data, and that a config without subcommand rejects.

@@ -1,6 +1,6 @@
 """Speed of a configured model on this machine: training iterations, full-frame rendering, a profile of one step.
 
-Everything starts from the public CLI (`cli.make_cli(args, run=False)`): the model and data module are the ones
+Everything starts from the public CLI (`make_cli(args, run=False)`): the model and data module are the ones
 `python -m simplenerf fit` would build, batches come from the data module, and Lightning runs the step (precision,
 accelerator). The config's own trainer callbacks are NOT used, the warm-up `LossWeightSchedule` among them: every
 loss is computed at its configured weight, i.e. the cost of a step after the paper's 10k-step warm-up (the release

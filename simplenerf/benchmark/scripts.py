@@ -32,7 +32,7 @@ def _common_parser(description: str) -> argparse.ArgumentParser:
 
 
 def _build(args: argparse.Namespace, overrides: list[str]):
-    from simplenerf.cli import make_cli
+    from simplenerf.lightning_cli import make_cli
 
     set_tf32(args.tf32)
     configs = [a for c in args.config for a in ("--config", c)]

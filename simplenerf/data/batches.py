@@ -11,11 +11,14 @@ All are dataclasses, which Lightning moves between devices as they are.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import Self
+from typing import TypeVar
 
 import torch
 
 from simplenerf.geometry.rays import RayBundle
+
+# typing.Self needs Python 3.11; the package supports 3.10 (pyproject).
+Batch = TypeVar("Batch", bound="RayBatch")
 
 
 @dataclass
@@ -30,7 +33,7 @@ class RayBatch:
     def __len__(self) -> int:
         return len(self.rays)
 
-    def __getitem__(self, index: slice) -> Self:
+    def __getitem__(self: Batch, index: slice) -> Batch:
         """The rays at `index` (a sub-batch), with every per-ray field."""
         return type(self)(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
 

@@ -24,6 +24,7 @@ from jsonargparse.typing import NonNegativeInt, PositiveInt
 
 from simplenerf.data.scene import Scene, SceneDataModule, Split, explicit_split
 from simplenerf.errors import DataError
+from simplenerf.geometry.poses import average_pose, poses_to_opengl, recenter
 from simplenerf.geometry.views import Views
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -91,37 +92,6 @@ def list_images(directory: Path) -> list[Path]:
                 "with zero-padded numbers (e.g. img002.png)"
             )
     return paths
-
-
-def poses_to_opengl(poses_bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Splits LLFF's [N, 17] rows into c2w [N, 3, 4] (OpenGL axes), hwf [N, 3] and bounds [N, 2].
-
-    LLFF stores the rotation columns as [down, right, back]; OpenGL's are [right, up, back].
-    """
-    mats = poses_bounds[:, :15].reshape(-1, 3, 5)
-    down, right, back, centre = mats[:, :, 0], mats[:, :, 1], mats[:, :, 2], mats[:, :, 3]
-    c2w = np.stack([right, -down, back, centre], axis=-1)
-    return c2w, mats[:, :, 4], poses_bounds[:, 15:17]
-
-
-def _normalize(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v)
-
-
-def average_pose(c2w: np.ndarray) -> np.ndarray:
-    """The mean camera [3, 4]: mean centre, mean viewing axis, mean up vector (orthonormalised)."""
-    centre = c2w[:, :, 3].mean(0)
-    back = _normalize(c2w[:, :, 2].sum(0))
-    right = _normalize(np.cross(c2w[:, :, 1].sum(0), back))
-    up = np.cross(back, right)
-    return np.stack([right, up, back, centre], axis=-1)
-
-
-def recenter(c2w: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Expresses poses [N, 3, 4] in the frame of `reference` [3, 4]."""
-    to_h = np.array([[0.0, 0.0, 0.0, 1.0]])
-    ref_inv = np.linalg.inv(np.concatenate([reference, to_h]))
-    return np.stack([(ref_inv @ np.concatenate([p, to_h]))[:3] for p in c2w])
 
 
 def image_dir(scene_dir: Path, factor: int) -> Path:
@@ -231,7 +201,7 @@ def load_llff_scene(
     elif depth_dir.is_dir():
         depths = read_reference_depth(depth_dir, names, height, width)
     views = make_views(images, intrinsics, c2w, names, depths, scale)
-    return Scene(views=views, split=split, scale=scale, bounds=bounds * scale)
+    return Scene(views=views, split=split, scale=scale, bounds=bounds * scale, source=scene_dir)
 
 
 def subset(views: Views, indices: list[int]) -> Views:

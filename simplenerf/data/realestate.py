@@ -23,14 +23,13 @@ from jsonargparse.typing import NonNegativeInt, PositiveInt
 
 from simplenerf.data.llff import (
     IMAGE_SUFFIXES,
-    average_pose,
     make_views,
     read_reference_depth,
     read_same_size_images,
-    recenter,
 )
 from simplenerf.data.scene import Scene, SceneDataModule, Split, explicit_split
 from simplenerf.errors import DataError
+from simplenerf.geometry.poses import average_pose, recenter
 
 # The paper's train frames in order of use: the first n train the n-view model.
 TRAIN_ORDER = (10, 20, 30, 0, 40)
@@ -165,7 +164,7 @@ def load_realestate_scene(
         depths = read_reference_depth(reference_depth_dir, timestamps, height, width)
     views = make_views(images, pixel_intrinsics(normalised, height, width), c2w, timestamps, depths, scale)
     bounds = np.tile(np.array(BOUNDS) * scale, (clip_length, 1))
-    return Scene(views=views, split=split, scale=scale, bounds=bounds)
+    return Scene(views=views, split=split, scale=scale, bounds=bounds, source=scene_dir, camera_path="recorded")
 
 
 class RealEstateDataModule(SceneDataModule):
@@ -175,8 +174,6 @@ class RealEstateDataModule(SceneDataModule):
     frames repeat the previous frame because the source video has fewer frames than camera timestamps, so those
     images lag their pose by one frame. That is the data as distributed; it is read as is.
     """
-
-    video_trajectory = "recorded"  # tools/render_video.py follows the clip's own camera path (LLFF: a spiral)
 
     def __init__(
         self, scene_dir: str, clip_start: NonNegativeInt = 0, clip_length: PositiveInt = 50,

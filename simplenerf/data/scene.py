@@ -19,6 +19,7 @@ from torch.utils.data import DataLoader
 
 from simplenerf.data.datasets import Frames, RandomRays, SparseDepthPool
 from simplenerf.errors import DataError
+from simplenerf.geometry.trajectories import TrajectoryKind, llff_spiral, recorded_trajectory
 from simplenerf.geometry.views import Views
 from simplenerf.sfm.sparse_depth import load_or_compute_sparse_depth
 
@@ -47,18 +48,37 @@ def explicit_split(num_frames: int, train_frames: list[int], test: list[int]) ->
 
 @dataclass
 class Scene:
-    """All frames of a scene, scaled and recentred, with the split."""
+    """All frames of a scene, scaled and recentred, with the split, where it was read from and its video path."""
 
     views: Views
     split: Split
     scale: float  # scene units per file unit
     bounds: np.ndarray  # [N, 2] near/far per frame, scene units
+    source: Path  # the folder the scene was read from (its name names the scene in results)
+    camera_path: TrajectoryKind = "spiral"  # the format's video path: LLFF's spiral, or a clip's own ("recorded")
+
+    def trajectory(
+        self, kind: TrajectoryKind | None = None, n_frames: int = 120, n_rotations: float = 2
+    ) -> torch.Tensor:
+        """The video path of the scene (`kind`, None: `camera_path`): the spiral fitted to ALL its frames' poses and
+        bounds, or the recorded path of all its frames (n_frames and n_rotations are then unused). Returns c2w
+        [N, 3, 4].
+
+        The spiral follows the authors' release, which fits it to every frame of the scene, train and test: with 2
+        train views the 90th-percentile radii of the train poses alone are those of the two cameras, so the path
+        would shrink to (nearly) a line between them. A scene of one's own photos without other frames has only its
+        train views, which are then all there is to fit to.
+        """
+        kind = kind or self.camera_path
+        if kind == "spiral":
+            return llff_spiral(self.views.c2w, self.bounds, n_frames, n_rotations)
+        if kind == "recorded":
+            return recorded_trajectory(self.views)
+        raise ValueError(f"unknown trajectory {kind!r}: expected 'spiral' or 'recorded'")
 
 
 class SceneDataModule(L.LightningDataModule, abc.ABC):
     """Random training rays from the train views, full frames for validation, test and predict."""
-
-    video_trajectory = "spiral"  # tools/render_video.py: an LLFF spiral around the train views, or "recorded"
 
     def __init__(
         self,
@@ -107,7 +127,8 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
 
     def cache_key(self) -> dict:
         """What identifies this scene's sparse depth besides the train views and the resolution."""
-        return {"scene": str(Path(self.scene_dir).resolve())}
+        assert self.scene is not None, "call setup() first"
+        return {"scene": str(self.scene.source.resolve())}
 
     def check_inputs(self, stage: str) -> None:
         """Loads everything `stage` needs; the CLI calls this before loggers or outputs start, so bad input (a missing
@@ -124,7 +145,7 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
         """SfM depth of the train views (poses fixed), computed with pycolmap on first use and cached."""
         train = self.train_views
         key = {**self.cache_key(), "views": self.scene.split.train, "height": train.height, "width": train.width}
-        print(f"sparse depth: SfM on train views {self.scene.split.train} of {self.scene_dir} "
+        print(f"sparse depth: SfM on train views {self.scene.split.train} of {self.scene.source} "
               f"(cached in {self.sparse_depth_cache}) ...", flush=True)
         per_view = load_or_compute_sparse_depth(self.sparse_depth_cache, key, train.images, train.intrinsics,
                                                 train.c2w)

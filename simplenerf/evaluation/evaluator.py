@@ -21,7 +21,7 @@ import lightning as L
 import numpy as np
 import torch
 
-from simplenerf.data.scene import Scene
+from simplenerf.data.scene import Scene, SceneDataModule
 from simplenerf.errors import DataError, RunFolderError
 from simplenerf.evaluation.visibility import MIN_VIEWS, scene_visibility_masks
 from simplenerf.metrics.lpips import LPIPS
@@ -35,17 +35,15 @@ MASKED_METRICS = MASKED_METRIC_NAMES
 ALL_METRICS = (*METRICS, *MASKED_METRICS)
 
 
-def export_visibility_masks(
-    scene: Scene, out_dir: str | Path, min_views: int = MIN_VIEWS, scene_dir: str | Path | None = None
-) -> dict[str, float]:
+def export_visibility_masks(scene: Scene, out_dir: str | Path, min_views: int = MIN_VIEWS) -> dict[str, float]:
     """Writes the visibility mask of every test frame of `scene` as `<out_dir>/<frame>.png` (white = visible) and
     `<out_dir>/<frame>.npy` (bool [H, W]); returns frame name -> visible fraction.
 
-    Raises DataError if the scene has no reference depth (`scene_dir` names it in the message).
+    Raises DataError if the scene has no reference depth (the message names the scene's folder).
     """
     if scene.views.depths is None:
         raise DataError(
-            f"{'scene ' + str(scene_dir) if scene_dir is not None else 'the scene'} has no reference depth, which "
+            f"scene {scene.source} has no reference depth, which "
             "visibility masks need (e.g. <scene>/depths_<factor>/<frame>.npy): train a dense NeRF "
             "(configs/dense/*.yaml), export its depth with tools/export_reference_depth.py and pass the folder as "
             "--data.init_args.reference_depth_dir"
@@ -133,6 +131,12 @@ def archive_path(folder: Path) -> Path:
         n += 1
         path = base.with_name(f"{base.name}-{n}")
     return path
+
+
+def _scene(trainer: L.Trainer) -> Scene | None:
+    """The scene of the trainer's data module (None: a data module of another kind, or none)."""
+    datamodule = trainer.datamodule
+    return datamodule.scene if isinstance(datamodule, SceneDataModule) else None
 
 
 class Evaluator(L.Callback):
@@ -241,7 +245,7 @@ class Evaluator(L.Callback):
             self.masks = self._visibility_masks(trainer)
 
     def _visibility_masks(self, trainer: L.Trainer) -> dict[int, torch.Tensor]:
-        scene = getattr(trainer.datamodule, "scene", None)
+        scene = _scene(trainer)
         if not self.use_masks or scene is None or scene.views.depths is None:
             return {}
         if len(scene.split.train) < self.min_views:
@@ -293,11 +297,10 @@ class Evaluator(L.Callback):
 
     def _provenance(self, trainer: L.Trainer) -> dict:
         """scene and n_views of the data module (None if it has none)."""
-        dm = trainer.datamodule
-        scene = getattr(dm, "scene", None)
-        scene_dir = getattr(dm, "scene_dir", None)
-        n_views = len(scene.split.train) if scene is not None else getattr(dm, "n_views", None)
-        return {"scene": Path(scene_dir).name if scene_dir is not None else None, "n_views": n_views}
+        scene = _scene(trainer)
+        if scene is None:
+            return {"scene": None, "n_views": None}
+        return {"scene": scene.source.name, "n_views": len(scene.split.train)}
 
     def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         assert self._partial is not None and self._final is not None

@@ -1,7 +1,7 @@
 """What one job of a sweep does (`run_unit`), in the process the executor gives it: submitit's job process on SLURM
 or on this machine, or the sweep's own process (debug).
 
-The stages run the package's own entry points in-process (`simplenerf.cli.make_cli` for fit / test, the tools'
+The stages run the package's own entry points in-process (`simplenerf.lightning_cli.make_cli` for fit / test, the tools'
 functions for depth export and masks), so on SLURM the fit is the job's process itself and receives SLURM's signal:
 Lightning's `SLURMEnvironment(auto_requeue=True)` saves `hpc_ckpt_N.ckpt` on SIGUSR1 (sbatch `--signal=USR1@90`)
 and requeues the job with `scontrol requeue`; the requeued job runs this again, in the same run folder and with the
@@ -60,8 +60,8 @@ def resume_checkpoint(folder: Path) -> str:
 
 def run_cli(args: list[str]):
     """The CLI on `args` in this process; JobFailed with its one error line if it stops on an error."""
-    from simplenerf.cli import make_cli
     from simplenerf.console import quiet_libraries
+    from simplenerf.lightning_cli import make_cli
 
     quiet_libraries()
     tee = _LastLine(sys.stderr)
@@ -111,8 +111,8 @@ def _device() -> str:
 
 
 def _depth(unit: Unit) -> None:
-    from simplenerf.cli import load_for_tool
     from simplenerf.evaluation.reference_depth import export_reference_depth
+    from simplenerf.lightning_cli import load_for_tool
 
     ckpt = Path(unit.folder) / "checkpoints" / "last.ckpt"
     try:
@@ -127,12 +127,12 @@ def _depth(unit: Unit) -> None:
 
 
 def _masks(unit: Unit) -> None:
-    from simplenerf.cli import load_for_tool
     from simplenerf.evaluation.evaluator import export_visibility_masks
+    from simplenerf.lightning_cli import load_for_tool
 
     try:
         cli = load_for_tool([], unit.args)
-        fractions = export_visibility_masks(cli.datamodule.scene, unit.extra["out"], scene_dir=unit.extra["scene_dir"])
+        fractions = export_visibility_masks(cli.datamodule.scene, unit.extra["out"])
     except SimpleNeRFError as e:
         raise JobFailed(f"{type(e).__name__}: {e}") from None
     print(f"visibility masks of {len(fractions)} test frames in {unit.extra['out']}", flush=True)

@@ -1,4 +1,5 @@
-"""Camera paths for videos (SPEC 7): the LLFF spiral and RealEstate-10K's recorded trajectory.
+"""Camera paths for videos: the LLFF spiral (the authors' release, LLFF's render path) and RealEstate-10K's recorded
+trajectory.
 
 Poses follow `geometry.rays`: c2w [..., 3, 4] in OpenGL axes (columns right, up, back; the camera looks along -z),
 positions in scene units (after the data module's scaling and recentring).
@@ -12,8 +13,7 @@ from typing import Literal
 import numpy as np
 import torch
 
-from simplenerf.data.llff import average_pose
-from simplenerf.data.scene import Scene
+from simplenerf.geometry.poses import average_pose
 from simplenerf.geometry.views import Views
 
 TrajectoryKind = Literal["spiral", "recorded"]
@@ -36,12 +36,12 @@ def llff_spiral(
 ) -> torch.Tensor:
     """The standard LLFF / NeRF video path, in this package's OpenGL axes, fitted to a set of camera poses.
 
-    The camera centre moves on an ellipse-like spiral around the average pose (`data.llff.average_pose`): in that
+    The camera centre moves on an ellipse-like spiral around the average pose (`geometry.poses.average_pose`): in that
     pose's frame, offset(theta) = [r_x cos theta, -r_y sin theta, -r_z sin(zrate theta)] for
     theta = 2 pi n_rotations i / n_frames, i = 0 .. n_frames - 1 (the start frame is not repeated at the end), with
     radii r = the 90th percentile of |camera position - average centre| per axis of that frame. Every camera looks at
     the point `spiral_focus_depth(bounds)` in front of the average pose (along its -z) and keeps the mean up vector as
-    up. The authors' release fits the path to all frames of the scene (`scene_trajectory`).
+    up. The authors' release fits the path to all frames of the scene (`data.scene.Scene.trajectory`).
 
     Args:
         c2w: [V, 3, 4] the camera poses the path is fitted to.
@@ -82,21 +82,3 @@ def llff_spiral(
 def recorded_trajectory(views: Views) -> torch.Tensor:
     """The camera path of the frames themselves, in frame order (RealEstate-10K clips): c2w [V, 3, 4]."""
     return views.c2w.clone()
-
-
-def scene_trajectory(
-    scene: Scene, kind: TrajectoryKind, n_frames: int = 120, n_rotations: float = 2
-) -> torch.Tensor:
-    """The video path of a scene: the spiral fitted to ALL its frames' poses and bounds, or the recorded path of all
-    its frames (n_frames and n_rotations are then unused). Returns c2w [N, 3, 4].
-
-    The spiral follows the authors' release, which fits it to every frame of the scene, train and test: with 2 train
-    views the 90th-percentile radii of the train poses alone are those of the two cameras, so the path would shrink
-    to (nearly) a line between them. A scene of one's own photos without other frames has only its train views,
-    which are then all there is to fit to.
-    """
-    if kind == "spiral":
-        return llff_spiral(scene.views.c2w, scene.bounds, n_frames, n_rotations)
-    if kind == "recorded":
-        return recorded_trajectory(scene.views)
-    raise ValueError(f"unknown trajectory {kind!r}: expected 'spiral' or 'recorded'")

@@ -12,7 +12,7 @@ Steps:
    - `images/<name>.png` (undistorted, full size) and `images_N/` (1/N size, area-averaged) for each factor N;
    - `poses_bounds.npy`: one [17] row per registered photo in sorted file-name order: the 3x5 matrix
      [down, right, back, centre, (height, width, focal)] of the camera-to-world pose (LLFF rotation columns, see
-     `simplenerf.data.llff.poses_to_opengl`) flattened row-major, then near, far = the 0.1 and 99.9 percentiles of the
+     `geometry.poses.poses_to_opengl`) flattened row-major, then near, far = the 0.1 and 99.9 percentiles of the
      camera z-depths of the 3D points seen in that photo. Units and world frame are COLMAP's (arbitrary scale);
      the loader rescales and recentres;
    - `sfm_report.json` (registered and unregistered photos, points, mean track length, reprojection error, camera,
@@ -40,9 +40,9 @@ import pycolmap
 from PIL import Image, UnidentifiedImageError
 from tqdm import tqdm
 
-from simplenerf.data.llff import poses_to_opengl
 from simplenerf.errors import DataError
 from simplenerf.geometry.alignment import CameraAlignment, align_cameras
+from simplenerf.geometry.poses import poses_to_opengl, to_poses_bounds
 from simplenerf.sfm.colmap import GL_TO_CV
 from simplenerf.sfm.mapping import ADVICE, CAMERA_MODELS, SfMResult, run_sfm
 from simplenerf.sfm.photo_files import (
@@ -64,15 +64,6 @@ def opengl_c2w_of_image(image: pycolmap.Image) -> np.ndarray:
     rotation = cam_from_world[:, :3].T  # camera-to-world rotation, OpenCV axes
     centre = -rotation @ cam_from_world[:, 3]
     return np.concatenate([rotation @ GL_TO_CV, centre[:, None]], axis=1)
-
-
-def to_poses_bounds(c2w: np.ndarray, hwf: np.ndarray, bounds: np.ndarray) -> np.ndarray:
-    """LLFF's [N, 17] rows from c2w [N, 3, 4] (OpenGL), hwf [N, 3] and bounds [N, 2]: the inverse of
-    `simplenerf.data.llff.poses_to_opengl` (rotation columns [down, right, back] = [-up, right, back])."""
-    c2w = np.asarray(c2w, dtype=np.float64)
-    mats = np.concatenate([-c2w[:, :, 1:2], c2w[:, :, 0:1], c2w[:, :, 2:4], np.asarray(hwf, np.float64)[:, :, None]],
-                          axis=2)
-    return np.concatenate([mats.reshape(len(c2w), 15), np.asarray(bounds, np.float64)], axis=1)
 
 
 def depth_bounds(reconstruction: pycolmap.Reconstruction, image: pycolmap.Image,

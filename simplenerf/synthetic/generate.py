@@ -46,6 +46,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from simplenerf.geometry.poses import to_poses_bounds
 from simplenerf.synthetic.objects import _objects
 from simplenerf.synthetic.scene import (
     FORMAT_VERSION,
@@ -205,21 +206,6 @@ def render_view(
     return np.ascontiguousarray(rgb.transpose(1, 2, 0)), depth
 
 
-def to_llff_poses_bounds(scene: SyntheticScene, near: np.ndarray, far: np.ndarray) -> np.ndarray:
-    """[N, 17] LLFF poses_bounds: 3x5 [-up, right, back, centre, hwf] flattened row-major, then near, far."""
-    c2w = scene.c2w
-    hwf = np.broadcast_to(np.array([scene.height, scene.width, scene.focal], dtype=np.float64), (len(c2w), 3))
-    llff = np.concatenate([-c2w[:, :, 1:2], c2w[:, :, 0:1], c2w[:, :, 2:4], hwf[:, :, None]], axis=2)
-    return np.concatenate([llff.reshape(len(c2w), 15), near[:, None], far[:, None]], axis=1).astype(np.float64)
-
-
-def from_llff_poses_bounds(poses_bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Inverse of `to_llff_poses_bounds`: (c2w [N, 3, 4] OpenGL, hwf [N, 3], bounds [N, 2])."""
-    mats = poses_bounds[:, :15].reshape(-1, 3, 5)
-    c2w = np.concatenate([mats[:, :, 1:2], -mats[:, :, 0:1], mats[:, :, 2:4]], axis=2)
-    return c2w, mats[:, :, 4], poses_bounds[:, 15:17]
-
-
 def _subdir(kind: str, factor: int) -> str:
     return kind if factor == 1 else f"{kind}_{factor}"
 
@@ -263,7 +249,8 @@ def _write_scene(scene: SyntheticScene, out: Path, factors: Sequence[int]) -> No
                 # Every factor's pixel grid is a subset of the full-resolution one, so these bound all stored depths.
                 depth32 = depth.astype(np.float32)
                 near[i], far[i] = float(depth32.min()), float(depth32.max())
-    np.save(out / "poses_bounds.npy", to_llff_poses_bounds(scene, near, far))
+    hwf = np.broadcast_to(np.array([scene.height, scene.width, scene.focal], dtype=np.float64), (n, 3))
+    np.save(out / "poses_bounds.npy", to_poses_bounds(scene.c2w, hwf, np.stack([near, far], axis=1)))
     meta = {
         "format_version": FORMAT_VERSION,
         "seed": scene.seed,

@@ -21,8 +21,9 @@ import torch
 from jsonargparse.typing import NonNegativeInt, PositiveInt
 from tqdm import tqdm
 
+from simplenerf.data.scene import SceneDataModule
 from simplenerf.geometry.rays import RayBundle, make_rays, pixel_grid
-from simplenerf.geometry.trajectories import TrajectoryKind, scene_trajectory
+from simplenerf.geometry.trajectories import TrajectoryKind
 from simplenerf.model.nerf import NeRF
 from simplenerf.viz.pictures import colorize_depth
 
@@ -173,7 +174,7 @@ def render_video(
 
 def render_scene_video(
     model: L.LightningModule,
-    datamodule: L.LightningDataModule,
+    datamodule: SceneDataModule,
     out_path: str | Path,
     kind: TrajectoryKind | None = None,
     frames: int = 120,
@@ -183,16 +184,16 @@ def render_scene_video(
     depth_range: tuple[float, float] | None = None,
 ) -> tuple[Path, int, int, int, TrajectoryKind, tuple[float, float]]:
     """The video of a trained module (its `nerf`, `hparams.chunk`) along its data module's camera path: the spiral
-    around the train views (`kind` "spiral") or the scene's recorded path ("recorded"); None: the data module's
-    `video_trajectory` attribute, else the spiral. Rendered at 1/`factor_down` of the data's resolution with the first
+    around the train views (`kind` "spiral") or the scene's recorded path ("recorded"); None: the scene's own
+    `camera_path`. Rendered at 1/`factor_down` of the data's resolution with the first
     train view's intrinsics.
 
     Returns:
         The written path, the number of frames, the width and height of each half, the path kind and the depth range.
     """
-    kind = kind or getattr(datamodule, "video_trajectory", "spiral")
     scene = datamodule.scene
-    c2w = scene_trajectory(scene, kind, frames, rotations)
+    kind = kind or scene.camera_path
+    c2w = scene.trajectory(kind, frames, rotations)
     intrinsics, height, width = downscale_intrinsics(
         scene.views.intrinsics[scene.split.train[0]], scene.views.height, scene.views.width, factor_down
     )
@@ -214,7 +215,7 @@ class TrainingVideo(L.Callback):
             rotations: turns of the spiral.
             factor_down: render at 1/N of the data's resolution (a full-resolution video on a CPU takes long).
             fps: frames per second.
-            trajectory: spiral or recorded; null: the data module's choice (RealEstate: recorded, else spiral).
+            trajectory: spiral or recorded; null: the scene's `camera_path` (RealEstate: recorded, else spiral).
         """
         self.frames, self.rotations, self.factor_down, self.fps = frames, rotations, factor_down, fps
         self.trajectory = trajectory
@@ -222,7 +223,7 @@ class TrainingVideo(L.Callback):
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if self.frames <= 0 or not trainer.is_global_zero:
             return
-        kind = self.trajectory or getattr(trainer.datamodule, "video_trajectory", "spiral")
+        kind = self.trajectory or trainer.datamodule.scene.camera_path
         out = Path(trainer.default_root_dir) / f"video_{kind}.mp4"
         written, n, width, height, kind, _ = render_scene_video(
             pl_module, trainer.datamodule, out, kind, self.frames, self.rotations, self.factor_down, self.fps

@@ -220,8 +220,8 @@ def test_export_visibility_masks(synthetic_scene, tmp_path) -> None:
         assert np.array_equal(picture, np.where(array, 255, 0))
 
     scene.views.depths = None
-    with pytest.raises(DataError, match="scene data/x has no reference depth.*tools/export_reference_depth.py"):
-        export_visibility_masks(scene, tmp_path / "none", scene_dir="data/x")
+    with pytest.raises(DataError, match=f"scene {synthetic_scene} has no reference depth.*export_reference_depth.py"):
+        export_visibility_masks(scene, tmp_path / "none")
     assert not (tmp_path / "none").exists()
 
 

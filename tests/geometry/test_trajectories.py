@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 import torch
 
-from simplenerf.data.llff import average_pose, load_llff_scene, subset
+from simplenerf.data.llff import load_llff_scene, subset
 from simplenerf.data.scene import Scene, Split
-from simplenerf.geometry.trajectories import llff_spiral, recorded_trajectory, scene_trajectory, spiral_focus_depth
+from simplenerf.geometry.poses import average_pose
+from simplenerf.geometry.trajectories import llff_spiral, recorded_trajectory, spiral_focus_depth
 from simplenerf.geometry.views import Views
 
 # Four axis-aligned cameras (identity rotation) around the origin: the average pose is the identity.
@@ -98,7 +99,7 @@ def test_scene_trajectory_spirals_around_all_frames(synthetic_scene):
     """As the authors' release: the spiral is fitted to every frame of the scene, not to the 2 train views."""
     scene = load_llff_scene(synthetic_scene, factor=1, n_views=2)
     train = scene.split.train
-    spiral = scene_trajectory(scene, "spiral", n_frames=12)
+    spiral = scene.trajectory("spiral", n_frames=12)
     assert torch.equal(spiral, llff_spiral(scene.views.c2w, scene.bounds, 12))
     assert not torch.allclose(spiral, llff_spiral(scene.views.c2w[train], scene.bounds[train], 12))
     # Centred on the average pose of all frames (not the origin, which is the average train pose), looking along
@@ -108,9 +109,9 @@ def test_scene_trajectory_spirals_around_all_frames(synthetic_scene):
     radii = np.percentile(offsets.abs().numpy(), 90, axis=0)
     first = (spiral[0, :, 3].double() - centre_pose[:, 3]) @ centre_pose[:, :3]
     torch.testing.assert_close(first, torch.tensor([radii[0], 0.0, 0.0], dtype=torch.float64), atol=1e-5, rtol=0)
-    assert torch.equal(scene_trajectory(scene, "recorded"), scene.views.c2w)
+    assert torch.equal(scene.trajectory("recorded"), scene.views.c2w)
     with pytest.raises(ValueError, match="unknown trajectory"):
-        scene_trajectory(scene, "orbit")
+        scene.trajectory("orbit")
 
 
 def test_a_scene_of_train_views_only_spirals_around_them(synthetic_scene):
@@ -118,6 +119,6 @@ def test_a_scene_of_train_views_only_spirals_around_them(synthetic_scene):
     scene = load_llff_scene(synthetic_scene, factor=1, n_views=2)
     train = scene.split.train
     own = Scene(views=subset(scene.views, train), split=Split(train=[0, 1], test=[], val=[0]), scale=scene.scale,
-                bounds=scene.bounds[train])
-    assert torch.equal(scene_trajectory(own, "spiral", n_frames=12),
+                bounds=scene.bounds[train], source=scene.source)
+    assert torch.equal(own.trajectory("spiral", n_frames=12),
                        llff_spiral(scene.views.c2w[train], scene.bounds[train], 12))

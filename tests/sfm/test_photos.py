@@ -16,10 +16,11 @@ from PIL import Image
 from PIL.TiffImagePlugin import IFDRational
 
 from simplenerf.cli import main as cli_main
-from simplenerf.data.llff import load_llff_scene, poses_to_opengl
+from simplenerf.data.llff import load_llff_scene
 from simplenerf.errors import DataError
+from simplenerf.geometry.poses import poses_to_opengl, to_poses_bounds
 from simplenerf.sfm.photo_files import common_size, exif_focal_pixels, fit_to_size, read_photo, undistort, undistortion
-from simplenerf.sfm.photos import compare_with_reference, process_photos, to_poses_bounds
+from simplenerf.sfm.photos import compare_with_reference, process_photos
 from simplenerf.synthetic.generate import make_synthetic_scene
 from tests.conftest import require_shared
 

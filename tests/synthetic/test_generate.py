@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from simplenerf.geometry.poses import poses_to_opengl
 from simplenerf.synthetic import generate as sy
 
 H, W = 48, 64  # small full resolution keeps the on-disk tests fast
@@ -223,7 +224,7 @@ def test_poses_bounds_round_trip(written: Path) -> None:
     c2w = np.stack([right, -down, back, centre], axis=-1)  # LLFF [down, right, back] -> OpenGL [right, up, back]
     np.testing.assert_array_equal(c2w, scene.c2w)
     np.testing.assert_array_equal(hwf, np.broadcast_to([H, W, scene.focal], (6, 3)))
-    c2w_fn, hwf_fn, bounds_fn = sy.from_llff_poses_bounds(poses_bounds)
+    c2w_fn, hwf_fn, bounds_fn = poses_to_opengl(poses_bounds)
     np.testing.assert_array_equal(c2w_fn, scene.c2w)
     np.testing.assert_array_equal(hwf_fn, hwf)
     for i in range(6):

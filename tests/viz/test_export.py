@@ -105,7 +105,7 @@ def test_export_of_a_tiny_model(synthetic_scene, tmp_path) -> None:
 
 
 def test_export_geometry_tool_on_the_demo_config(tmp_path, monkeypatch) -> None:
-    from simplenerf.cli import make_cli
+    from simplenerf.lightning_cli import make_cli
     from tests.test_cli import run_args
 
     monkeypatch.setattr(sys, "argv", sys.argv[:1])  # the CLI reads these arguments, not pytest's

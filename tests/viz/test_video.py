@@ -9,7 +9,6 @@ import pytest
 import torch
 
 from simplenerf.data.llff import load_llff_scene
-from simplenerf.geometry.trajectories import scene_trajectory
 from simplenerf.model.nerf import NeRF, mlp_nerf
 from simplenerf.viz.video import compose_frame, depth_colour_range, downscale_intrinsics, frame_rays, render_video
 from tests.conftest import REPO
@@ -73,7 +72,7 @@ def test_frame_rays_are_row_major():
 
 def test_render_video_writes_rgb_beside_depth(synthetic_scene, tmp_path):
     scene = load_llff_scene(synthetic_scene, factor=1, n_views=2)
-    c2w = scene_trajectory(scene, "spiral", n_frames=8)
+    c2w = scene.trajectory("spiral", n_frames=8)
     h, w = scene.views.height, scene.views.width
     nerf = tiny_nerf()
     out, depth_range = render_video(nerf, c2w, scene.views.intrinsics[0], h, w, 1.0, 1024, tmp_path / "v.mp4",
@@ -124,7 +123,7 @@ def run_tool(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_render_video_tool_on_the_demo_config(tmp_path, monkeypatch):
-    from simplenerf.cli import make_cli
+    from simplenerf.lightning_cli import make_cli
     from tests.test_cli import run_args
 
     monkeypatch.setattr(sys, "argv", sys.argv[:1])  # the CLI reads these arguments, not pytest's

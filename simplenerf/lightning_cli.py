@@ -1,0 +1,360 @@
+"""The LightningCLI of `python -m simplenerf {fit,validate,test,predict} --config ...`, with the project's defaults;
+`make_cli` builds it for the command line (`simplenerf.cli.main`), the tools and the sweep's jobs.
+
+Defaults every run gets: W&B logging (offline without credentials), progress (a bar in a terminal, a plain line
+every N steps in a log file: `--progress.*`), rays/s, learning-rate logging, checkpoints under
+`<trainer.default_root_dir>/checkpoints` (resume with `--ckpt_path last`), a stop on a NaN/inf loss, the validation
+renders (`--val_renders.*`), the evaluation callback (`--evaluation.*`) that writes test metrics and renders, and an
+optional video at the end of training (`--video.frames N`).
+
+A run is trusted before it starts: inputs (data, LPIPS weights, the checkpoint and whether it fits the model, the
+run folder; `simplenerf.checks`) are checked first and a problem stops the command with one `simplenerf: error:`
+line, exit status 2 and nothing created (`simplenerf.console`: parser errors too, with a hint). `fit` refuses a run
+folder that already has checkpoints unless it resumes (`--ckpt_path last`) or is told `--overwrite true`;
+`<run>/config.yaml` records how the run was trained (`test` saves its own config beside its results).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+from jsonargparse import lazy_instance
+from lightning.pytorch import LightningDataModule, Trainer
+from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
+from lightning.pytorch.utilities import rank_zero_only
+
+from simplenerf import interrupts
+from simplenerf.callbacks import (
+    Checkpointing,
+    LearningRates,
+    ProgressLog,
+    RaysPerSecond,
+    StopOnNonFiniteLoss,
+    TrainingProgressBar,
+)
+from simplenerf.checks import (
+    check_checkpoint_fits,
+    check_model_meets_data,
+    check_writable,
+    kept_checkpoints,
+    preflight_inputs,
+    preflight_outputs,
+    prepare_fresh_fit,
+    read_checkpoint,
+    resolve_checkpoint,
+)
+from simplenerf.console import PROG, HeldLogs, OneLineErrorParser
+from simplenerf.data.scene import SceneDataModule
+from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged
+from simplenerf.evaluation.evaluator import Evaluator
+from simplenerf.loggers import WandbLogger
+from simplenerf.memory import reuse_freed_memory
+from simplenerf.metrics.lpips import LPIPSWeightsNotFound
+from simplenerf.module import SimpleNeRF
+from simplenerf.resume import (
+    TEST_KEYS,
+    RunRecord,
+    describe_checkpoint,
+    recorded_settings,
+    run_settings,
+    setting_changes,
+)
+from simplenerf.run_lock import command_line, lock_run_folder
+from simplenerf.viz.renders import ValidationRenders
+from simplenerf.viz.video import TrainingVideo
+
+DESCRIPTION = (
+    "SimpleNeRF (SIGGRAPH Asia 2023): Neural Radiance Fields from 2 to 4 photos, regularised by simpler augmented "
+    "models. fit trains a run (resume with --ckpt_path last), validate scores the validation view, test renders and "
+    "scores every test frame into <run>/test, predict renders the test frames. Start from a config in configs/, "
+    "e.g. `simplenerf fit --config configs/demo.yaml`; `simplenerf fit --help` lists every option."
+)
+
+
+class RunConfig(SaveConfigCallback):
+    """`fit` saves its config as `<run>/config.yaml`, the record of how the run was trained. Other subcommands leave
+    that file alone and hand their config to the Evaluator, which keeps it beside their results
+    (`<run>/test/config.yaml`)."""
+
+    def setup(self, trainer, pl_module, stage: str) -> None:
+        if stage == "fit":
+            super().setup(trainer, pl_module, stage)
+            return
+        text = self.parser.dump(self.config, skip_none=False)
+        for callback in trainer.callbacks:
+            if isinstance(callback, Evaluator):
+                callback.run_config = text
+
+
+class SimpleNeRFCLI(LightningCLI):
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        # Lightning's info lines (seed, devices) appear once the inputs pass: a bad input prints its error line alone.
+        self._held_logs = HeldLogs()
+        try:
+            super().__init__(*args, **kwargs)
+        except BaseException:
+            self._held_logs.release(emit=False)
+            raise
+        self._held_logs.release()
+
+    def add_arguments_to_parser(self, parser) -> None:
+        parser.add_lightning_class_args(Checkpointing, "checkpoint")
+        parser.add_lightning_class_args(Evaluator, "evaluation")
+        parser.add_lightning_class_args(ValidationRenders, "val_renders")
+        parser.add_lightning_class_args(ProgressLog, "progress")
+        parser.add_lightning_class_args(TrainingVideo, "video")
+        parser.link_arguments(
+            "trainer.default_root_dir", "checkpoint.dirpath", compute_fn=lambda root: os.path.join(root, "checkpoints")
+        )
+        # One setting of one fact: the NDC near plane the data module builds rays with is the one the NeRF maps
+        # samples back to metric depth with.
+        parser.link_arguments("data.init_args.near", "model.nerf.init_args.near")
+
+    def _prepare_subcommand_parser(self, klass: type, subcommand: str, **kwargs: Any) -> LightningArgumentParser:
+        parser = super()._prepare_subcommand_parser(klass, subcommand, **kwargs)
+        if subcommand == "fit":
+            parser.add_argument(
+                "--overwrite", type=bool, default=False,
+                help="Start afresh in a run folder that already has checkpoints, deleting them. Without it, fit "
+                "refuses such a folder unless it resumes with --ckpt_path.",
+            )
+        if subcommand in ("fit", "test"):
+            parser.add_argument(
+                "--allow_changes", type=list[str], default=[],
+                help="Data or model settings (keys as the refusal lists them, e.g. [data.init_args.rays_per_batch]) "
+                "that may differ from those the checkpoint was trained with. Without it, a resume (or a test) whose "
+                "settings differ from the run's stops. Trainer settings (max_steps, ...) may always change.",
+            )
+        return parser
+
+    def instantiate_trainer(self, **kwargs: Any) -> Trainer:
+        """The trainer, its W&B logger writing into the run folder unless told another `save_dir`."""
+        trainer = super().instantiate_trainer(**kwargs)
+        for logger in trainer.loggers:
+            if isinstance(logger, WandbLogger):
+                logger.use_run_folder(trainer.default_root_dir)
+        return trainer
+
+    def checkpoint_folder(self) -> Path:
+        callback = self.trainer.checkpoint_callback
+        if callback is not None and callback.dirpath is not None:
+            return Path(callback.dirpath)
+        return Path(self.trainer.default_root_dir) / "checkpoints"
+
+    def output_folders(self, subcommand: str) -> list[Path]:
+        """The folders `subcommand` writes into (checked for writing once the inputs pass)."""
+        folders = [Path(self.trainer.default_root_dir)]
+        if subcommand == "fit":
+            folders.append(self.checkpoint_folder())
+        folders += [Path(logger.save_dir) for logger in self.trainer.loggers if logger.save_dir is not None]
+        for callback in self.trainer.callbacks:
+            if isinstance(callback, Evaluator) and callback.output_dir is not None:
+                folders.append(Path(callback.output_dir).parent)
+        return list(dict.fromkeys(folders))
+
+    def _run_subcommand(self, subcommand: str) -> None:
+        # Bad input (a missing scene, missing LPIPS weights, a checkpoint that does not fit) stops here, before
+        # loggers or outputs create anything: the data module and every callback that declares pre-flight checks
+        # (`simplenerf.checks`: ChecksModel, ChecksInputs, ChecksOutputs) run them.
+        data = self.datamodule if isinstance(self.datamodule, SceneDataModule) else None
+        check_model_meets_data(self.model, data.n_views if data is not None else None, subcommand)
+        try:
+            preflight_inputs([self.datamodule, *self.trainer.callbacks], self.model, subcommand)
+        except LPIPSWeightsNotFound as e:
+            # The advice must be one that works: lpips_weights takes a path, lpips turns the metric off.
+            raise SimpleNeRFError(re.sub(r"\(e\.g\. `--evaluation\.lpips_weights none`\)",
+                                         "with `--evaluation.lpips false`", str(e))) from None
+        if data is not None and subcommand == "fit":
+            check_model_meets_data(self.model, len(data.train_views), subcommand)
+        config = self.config_init[subcommand]
+        folder = self.checkpoint_folder()
+        given = config.get("ckpt_path")
+        config["ckpt_path"] = resolve_checkpoint(subcommand, given, folder, self.model)
+        self.check_settings(subcommand, config)
+        if subcommand == "fit" and given is None:
+            prepare_fresh_fit(folder, bool(config.get("overwrite", False)))
+        check_writable(self.output_folders(subcommand))
+        preflight_outputs(self.trainer.callbacks, self.trainer, subcommand)  # e.g. an earlier test/ kept in the way
+        if rank_zero_only.rank == 0:  # one writer per run folder (under DDP, rank 0 for all)
+            lock_run_folder(Path(self.trainer.default_root_dir), command_line())
+        self._held_logs.release()
+        scene = data.scene if data is not None else None
+        if subcommand == "test" and scene is not None and not scene.split.test:
+            from simplenerf.viz.export import render_without_test_frames
+
+            out = Path(self.trainer.default_root_dir) / "test"
+            written = render_without_test_frames(self.model, self.datamodule, config["ckpt_path"], out)
+            print(f"simplenerf: this split has no test frames (train frames {scene.split.train}), so there are no "
+                  f"metrics; wrote the train views' depth maps and point cloud and the spiral video: "
+                  f"{', '.join(map(str, written))}", flush=True)
+            return
+        try:
+            super()._run_subcommand(subcommand)
+        except TrainingDiverged as e:
+            raise TrainingDiverged(f"{e}; {kept_checkpoints(folder)}") from None
+        except (KeyboardInterrupt, SystemExit) as e:  # Lightning's SIGTERMException and its sys.exit(1) on Ctrl-C
+            if interrupts.received is None:
+                raise
+            raise self.stopped(subcommand, folder, interrupts.received) from e
+
+    def stopped(self, subcommand: str, folder: Path, signum: int) -> Stopped:
+        """The one line of a run a signal stopped (`simplenerf.interrupts`)."""
+        how = f"{subcommand} stopped by {interrupts.name(signum)}"
+        if subcommand == "fit":
+            return Stopped(f"{how} at step {self.trainer.global_step}; {kept_checkpoints(folder)}", signum)
+        return Stopped(f"{how} before it finished: no results were written (earlier results are kept)", signum)
+
+    def check_settings(self, subcommand: str, config: Any) -> None:
+        """A resume continues the run it resumes: its data and model settings must be the checkpoint's (`resume`);
+        `test` must score the scene and train views the checkpoint trained on. Records the settings for `fit`."""
+        record = next((c for c in self.trainer.callbacks if isinstance(c, RunRecord)), None)
+        current = run_settings(self.config[subcommand], self.datamodule)
+        if record is not None and subcommand == "fit":
+            record.settings = current
+        ckpt = config.get("ckpt_path")
+        if subcommand not in ("fit", "test") or ckpt is None or not Path(str(ckpt)).is_file():
+            return
+        checkpoint = read_checkpoint(Path(ckpt))
+        recorded = recorded_settings(checkpoint)
+        if recorded is None:
+            return  # written before runs recorded their settings
+        allowed = tuple(config.get("allow_changes") or ())
+        changes = setting_changes(recorded, current, TEST_KEYS if subcommand == "test" else None, allowed)
+        if not changes:
+            return
+        what = "resume" if subcommand == "fit" else "test"
+        listed = "; ".join(changes)
+        keys = ", ".join(change.split(":")[0] for change in changes)
+        raise CheckpointError(
+            f"this {what} differs from the run of checkpoint {describe_checkpoint(ckpt, checkpoint)} in {listed}; "
+            f"use the run's settings (its config.yaml), start a new run in another folder, or accept the change with "
+            f"--allow_changes [{keys}]"
+        )
+
+
+def trainer_defaults() -> dict:
+    """Every run's trainer settings. In a terminal a progress bar (counting steps, also after a resume); elsewhere
+    (a log file) no bar, and `ProgressLog` prints plain lines instead."""
+    terminal = sys.stdout.isatty()
+    return {
+        "default_root_dir": "runs/default",
+        "max_steps": 100000,
+        "logger": lazy_instance(WandbLogger),
+        "callbacks": [*([TrainingProgressBar()] if terminal else []), RaysPerSecond(), LearningRates(),
+                      StopOnNonFiniteLoss(), RunRecord()],
+        "enable_progress_bar": terminal,
+        "check_val_every_n_epoch": None,
+        "val_check_interval": 5000,
+        "num_sanity_val_steps": 0,
+    }
+
+
+# The arguments of a subcommand itself, not of the model, data or trainer: a fit saves them in <run>/config.yaml.
+SUBCOMMAND_KEYS = ("ckpt_path", "weights_only", "overwrite", "allow_changes")
+
+
+def without_subcommand_keys(args: list[str], drop: tuple[str, ...]) -> list[str]:
+    """`args` with each `--config FILE` whose top level sets one of `drop` (a run's saved config.yaml) given as its
+    YAML without those keys, so that a fit's record works as the --config of test, validate or a tool."""
+    out: list[str] = []
+    i = 0
+    while i < len(args):
+        if args[i] == "--config" and i + 1 < len(args):
+            out += ["--config", _config_without(args[i + 1], drop)]
+            i += 2
+            continue
+        if args[i].startswith("--config="):
+            out.append("--config=" + _config_without(args[i].split("=", 1)[1], drop))
+        else:
+            out.append(args[i])
+        i += 1
+    return out
+
+
+def check_config_files(args: list[str]) -> None:
+    """Each `--config FILE` given must be readable YAML: else one line naming the file, line and column (the
+    parser itself reads the text and would lose the file's name)."""
+    paths = [args[i + 1] for i, arg in enumerate(args[:-1]) if arg == "--config"]
+    paths += [arg.split("=", 1)[1] for arg in args if arg.startswith("--config=")]
+    for path in paths:
+        if not Path(path).is_file():
+            continue
+        try:
+            yaml.safe_load(Path(path).read_text())
+        except UnicodeDecodeError:
+            raise SimpleNeRFError(f"config file {path} is not text (UTF-8 YAML)") from None
+        except OSError as e:
+            raise SimpleNeRFError(f"cannot read config file {path}: {e.strerror or e}") from None
+        except yaml.YAMLError as e:
+            mark = getattr(e, "problem_mark", None)
+            where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else "somewhere"
+            what = " ".join(str(part) for part in (getattr(e, "context", None), getattr(e, "problem", None)) if part)
+            raise SimpleNeRFError(f"config file {path}: YAML syntax error at {where}: {what or e}") from None
+
+
+def _config_without(path: str, drop: tuple[str, ...]) -> str:
+    file = Path(path)
+    if not file.is_file():
+        return path  # a YAML string, or a missing file the parser reports
+    try:
+        config = yaml.safe_load(file.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError):
+        return path
+    if not isinstance(config, dict) or not any(key in config for key in drop):
+        return path
+    return yaml.safe_dump({k: v for k, v in config.items() if k not in drop}, sort_keys=False)
+
+
+def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[LightningCLI] = SimpleNeRFCLI):
+    """The CLI on `args` (None: sys.argv). With run=False it only builds model, data module and trainer (tools).
+
+    Every entry point comes through here, so this is also where SIMPLENERF_MALLOC=reuse takes effect (keep freed
+    host memory for reuse: fewer page faults, more memory; see `simplenerf.memory`).
+    A fit's saved `<run>/config.yaml` can be passed back as --config: the fit's own arguments in it (`overwrite`;
+    for a tool also `ckpt_path` and `weights_only`) are dropped where they do not apply.
+    """
+    reuse_freed_memory()
+    given = list(sys.argv[1:] if args is None else args)
+    check_config_files(given)
+    if not run:  # a tool: none of a subcommand's arguments apply
+        drop = SUBCOMMAND_KEYS
+    else:
+        drop = {"fit": (), "test": ("overwrite",)}.get(given[0] if given else "", ("overwrite", "allow_changes"))
+    if drop:  # (otherwise args stay as given: Lightning warns when args and sys.argv both hold arguments)
+        readable = without_subcommand_keys(given, drop)
+        args = readable if readable != given else args
+    return cli_class(
+        SimpleNeRF,
+        LightningDataModule,
+        subclass_mode_data=True,
+        trainer_defaults=trainer_defaults(),
+        save_config_callback=RunConfig,
+        save_config_kwargs={"overwrite": True},
+        parser_class=OneLineErrorParser,
+        parser_kwargs={"prog": PROG, "description": DESCRIPTION},
+        seed_everything_default=0,
+        run=run,
+        args=args,
+    )
+
+
+def load_for_tool(
+    configs: list[str], overrides: list[str], stage: str = "test", ckpt: str | None = None, device: str = "cpu"
+) -> LightningCLI:
+    """What the tools in tools/ start from: the CLI of `configs` + `overrides` without a logger, its data module set
+    up for `stage` and, with `ckpt`, the model's trained weights loaded (eval mode, on `device`)."""
+    if ckpt is not None and not Path(ckpt).is_file():
+        raise DataError(f"checkpoint {ckpt} does not exist")
+    cli = make_cli([*(a for c in configs for a in ("--config", c)), *overrides, "--trainer.logger", "false"], run=False)
+    cli.datamodule.setup(stage)
+    if ckpt is not None:
+        checkpoint = read_checkpoint(Path(ckpt))
+        check_checkpoint_fits(Path(ckpt), checkpoint, cli.model)
+        cli.model.load_state_dict(checkpoint["state_dict"])
+        cli.model.to(device).eval()
+    return cli

@@ -12,6 +12,11 @@ class DataError(SimpleNeRFError, ValueError):
     """A scene on disk is missing, incomplete or inconsistent, or a split cannot be made from it."""
 
 
+class SfMError(DataError):
+    """Structure from motion (`simplenerf.sfm`) cannot place cameras or points from these images (too few views, no
+    features or verified matches, poses the images contradict); the message says why and what to try."""
+
+
 class CheckpointError(SimpleNeRFError):
     """A checkpoint is missing, unreadable (truncated, not a checkpoint) or does not fit the model."""
 

@@ -14,7 +14,7 @@ configs/realestate.yaml. Rows compare:
 4. sparse depth: synthetic 3D points (in file units, seen by at least two train views) are written to the release as
    its CSVs (x, y, depth, reprojection_error, weight per frame) and given to ours as the SfM result our pipeline
    would compute for them (each point placed in OUR scene from its generating view, its depth the z-depth in each
-   observing view of OUR cameras: `colmap.collect`'s definition); then the per-ray targets of the release's
+   observing view of OUR cameras: `known_poses.collect`'s definition); then the per-ray targets of the release's
    sparse-depth batch (`get_next_batch`: `sparse_depth_values`) and of ours (`RandomRays.sparse_batch`:
    `SparseDepthBatch.depth`, `weight`) for the same points, and their rays.
 
@@ -213,13 +213,13 @@ def csv_tables(per_view: list[dict]) -> list[pd.DataFrame]:
 
 
 def our_sparse_depth(per_view: list[dict], intrinsics: torch.Tensor, c2w: torch.Tensor, scale: float):
-    """What our SfM (`sparse_depth.compute_sparse_depth` + `colmap.collect`) holds for these points and observations:
+    """What our SfM (`compute_sparse_depth` + `known_poses.collect`) holds for these points and observations:
     each observation's keypoint, and the point's z-depth in that view of OUR scene (`geometry.rays.project`). The
     point is placed in our scene from its generating view: our ray there (`pixel_rays`) at its z-depth times our
     scale (float64; triangulating instead would amplify float32 camera round-off by depth / baseline, ~1e-4 on the
     RealEstate-10K clip). Returns `SparseDepth` per view and our projections uv of the points [per view]."""
     from simplenerf.geometry.rays import pixel_rays, project
-    from simplenerf.sfm.colmap import SparseDepth
+    from simplenerf.sfm.known_poses import SparseDepth
 
     k64, c64 = intrinsics.double(), c2w.double()
     out, projections = [], []

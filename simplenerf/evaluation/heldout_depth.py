@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from simplenerf.data.scene import Scene
-from simplenerf.sfm.colmap import SparseDepth
+from simplenerf.sfm.known_poses import SparseDepth
 from simplenerf.sfm.sparse_depth import load_or_compute_sparse_depth
 
 if TYPE_CHECKING:

@@ -1,6 +1,7 @@
-"""COLMAP in-process (pycolmap 4.x): the conventions between our cameras and COLMAP's, and the stages of SfM with
-known poses that `simplenerf.sfm.sparse_depth` runs (SIFT, exhaustive matching, verified-pair diagnostics,
-triangulation with the poses held fixed, collecting per-view depths).
+"""COLMAP in-process (pycolmap 4.x): the conventions between our cameras and COLMAP's, and the stage every use of
+structure from motion here starts with: SIFT features and exhaustive matching with geometric verification
+(`extract_and_match`), shared by the sparse depth of posed views (`simplenerf.sfm.sparse_depth`, cameras known) and
+own photos (`simplenerf.sfm.mapping`, cameras estimated). A failing COLMAP stage raises `SfMError`.
 
 Conventions: COLMAP uses OpenCV axes (x right, y down, z forward), world-to-camera poses, and puts the centre of pixel
 index u at the continuous coordinate u + 0.5; ours are OpenGL c2w and pixel centres at integers (see
@@ -11,46 +12,19 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pycolmap
 
-from simplenerf.errors import SimpleNeRFError
+from simplenerf.errors import SfMError, SimpleNeRFError
 
 logger = logging.getLogger("simplenerf.sfm.sparse_depth")
 
 # OpenGL camera axes (right, up, back) -> OpenCV/COLMAP axes (right, down, forward).
 GL_TO_CV = np.diag([1.0, -1.0, -1.0])
-ADVICE = (
-    "Try more views, a higher resolution (e.g. images_4 instead of images_8), and check that the poses and "
-    "intrinsics are right (OpenGL c2w, scene units, intrinsics of this resolution)."
-)
-
-
-class SparseDepthError(SimpleNeRFError, RuntimeError):
-    """Sparse depth cannot be computed for these images and cameras; the message says why and what to try."""
-
-
-@dataclass
-class SparseDepth:
-    """Sparse depth of one view: M pixels with the depth of the 3D point observed there."""
-
-    pixels: np.ndarray  # [M, 2] float32, (u, v) continuous keypoint location in this project's pixel convention
-    depth: np.ndarray  # [M] float32, camera z-depth in scene units (t along the pixel's ray)
-    reprojection_error: np.ndarray  # [M] float32, mean reprojection error of the 3D point over its track, pixels
-    point_ids: np.ndarray  # [M] int64, 3D point id: the same id in two views is the same 3D point
-
-    def __len__(self) -> int:
-        return int(self.depth.shape[0])
-
-    @property
-    def pixel_indices(self) -> np.ndarray:
-        """[M, 2] int64 (column, row) of the pixel each keypoint lies on (nearest integer coordinate)."""
-        return np.rint(self.pixels).astype(np.int64)
 
 
 def colmap_cam_from_world(c2w: np.ndarray) -> np.ndarray:
@@ -67,6 +41,14 @@ def colmap_pinhole_params(intrinsics: np.ndarray) -> list[float]:
         float(intrinsics[0, 2]) + 0.5,
         float(intrinsics[1, 2]) + 0.5,
     ]
+
+
+def opengl_c2w_of_image(image: pycolmap.Image) -> np.ndarray:
+    """[3, 4] camera-to-world in OpenGL axes (right, up, back) of a registered COLMAP image."""
+    cam_from_world = image.cam_from_world().matrix()
+    rotation = cam_from_world[:, :3].T  # camera-to-world rotation, OpenCV axes
+    centre = -rotation @ cam_from_world[:, 3]
+    return np.concatenate([rotation @ GL_TO_CV, centre[:, None]], axis=1)
 
 
 @contextlib.contextmanager
@@ -86,260 +68,145 @@ def log(progress: bool, message: str, *args: object) -> None:
 
 
 @contextlib.contextmanager
-def colmap_stage(
-    stage: str, error: type[SimpleNeRFError] | None = None, advice: str = ADVICE
-) -> Iterator[None]:
-    """Turns a failing COLMAP check (raised by pycolmap as a bare RuntimeError/ValueError) into one clear error of
-    type `error` (default `SparseDepthError`) that names the stage and ends with `advice`."""
-    error = error or SparseDepthError
+def colmap_stage(stage: str, advice: str) -> Iterator[None]:
+    """Turns a failing COLMAP check (raised by pycolmap as a bare RuntimeError/ValueError) into one `SfMError` that
+    names the stage and ends with `advice`."""
     try:
         yield
     except SimpleNeRFError:
         raise
     except (RuntimeError, ValueError) as e:
-        raise error(f"COLMAP failed during {stage}: {e}. {advice}") from e
+        raise SfMError(f"COLMAP failed during {stage}: {e}. {advice}") from e
 
 
-def write_images(images: list[np.ndarray], folder: Path) -> list[str]:
-    folder.mkdir()
-    names = []
-    for index, image in enumerate(images):
-        name = f"{index:04d}.png"
-        # PNG is lossless, so SIFT sees exactly the training pixels.
-        if not cv2.imwrite(str(folder / name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
-            raise SparseDepthError(f"cannot write {folder / name} for COLMAP")
-        names.append(name)
-    return names
+@dataclass(frozen=True)
+class CameraSetup:
+    """How COLMAP is told about the cameras of the images."""
+
+    model: str  # COLMAP camera model, e.g. PINHOLE (known intrinsics) or SIMPLE_RADIAL (estimated)
+    shared: bool = False  # one camera for every image (else one per image)
+    params: Sequence[Sequence[float]] | None = None  # per image, its known camera parameters (kept fixed)
+    focal_priors: Sequence[float | None] | None = None  # per image, a focal length prior in pixels, or None
 
 
-def extract_features(
+@dataclass
+class Matches:
+    """What feature extraction and matching found."""
+
+    keypoints: dict[str, int]  # SIFT keypoints per image name
+    pairs: dict[tuple[str, str], int]  # geometrically verified matches per image pair with any
+
+
+def extract_and_match(
     database_path: Path,
     image_dir: Path,
     names: list[str],
-    intrinsics: np.ndarray,
+    cameras: CameraSetup,
+    *,
     max_image_size: int,
     max_num_features: int,
+    seed: int,
     num_threads: int,
-) -> None:
+    advice: str,
+    guided_matching: bool = False,
+    relative_pose: bool = False,
+    require_features: bool = False,
+) -> Matches:
+    """SIFT features of the images `names` in `image_dir` and exhaustive matching with RANSAC verification, written to
+    the COLMAP database `database_path` (created).
+
+    Args:
+        database_path: the database file to create.
+        image_dir: folder of the images.
+        names: file names in `image_dir` to use.
+        cameras: the cameras' model, sharing, known parameters or focal priors.
+        max_image_size: SIFT runs on images downscaled to at most this longer side (keypoints are scaled back).
+        max_num_features: SIFT keypoints kept per image.
+        seed: seed of COLMAP's RANSAC.
+        num_threads: CPU threads for COLMAP (-1: all cores).
+        advice: what to try, ending every error's message.
+        guided_matching: re-match along the verified epipolar geometry.
+        relative_pose: also estimate each verified pair's relative pose (diagnostics of given poses).
+        require_features: every image must have SIFT features (else one that has none is an error).
+
+    Raises:
+        SfMError: COLMAP fails, cannot read an image, or (`require_features`) finds no feature in one.
+    """
     reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "PINHOLE"
-    # One camera per image, created with view 0's parameters and then overwritten with each view's own below.
-    reader.camera_params = ",".join(str(p) for p in colmap_pinhole_params(intrinsics[0]))
+    reader.camera_model = cameras.model
+    if cameras.params is not None:
+        # Every camera is created with image 0's parameters and then overwritten with its image's own below.
+        reader.camera_params = ",".join(str(p) for p in cameras.params[0])
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = num_threads
-    extraction.sift.max_num_features = max_num_features
-    # Never downscale: keypoints must be as precise as the training pixels.
     extraction.max_image_size = max_image_size
-    with colmap_stage("SIFT feature extraction"):
+    extraction.sift.max_num_features = max_num_features
+    with colmap_stage("SIFT feature extraction", advice):
         pycolmap.extract_features(
             database_path,
             image_dir,
             image_names=names,
-            camera_mode=pycolmap.CameraMode.PER_IMAGE,
+            camera_mode=pycolmap.CameraMode.SINGLE if cameras.shared else pycolmap.CameraMode.PER_IMAGE,
             reader_options=reader,
             extraction_options=extraction,
             device=pycolmap.Device.cpu,
         )
     database = pycolmap.Database.open(database_path)
     try:
-        by_name = {image.name: image for image in database.read_all_images()}
-        for index, name in enumerate(names):
-            if name not in by_name:
-                raise SparseDepthError(f"COLMAP could not read image {index} ({name})")
-            image = by_name[name]
-            if database.num_keypoints_for_image(image.image_id) == 0:
-                raise SparseDepthError(
-                    f"image {index} has no SIFT features: textureless (e.g. a constant colour), blank or too small? "
-                    f"Sparse depth needs textured images."
-                )
-            camera = database.read_camera(image.camera_id)
-            camera.params = colmap_pinhole_params(intrinsics[index])
-            database.update_camera(camera)
+        images = {image.name: image for image in database.read_all_images()}
+        missing = [f"{index} ({name})" for index, name in enumerate(names) if name not in images]
+        if missing:
+            raise SfMError(f"COLMAP could not read image {', '.join(missing)}")
+        keypoints = {n: int(database.num_keypoints_for_image(images[n].image_id)) for n in names}
+        blank = [f"{index} ({name})" for index, name in enumerate(names) if keypoints[name] == 0]
+        if require_features and blank:
+            raise SfMError(f"image {', '.join(blank)} has no SIFT features: textureless (e.g. a constant colour), "
+                           f"blank or too small? {advice}")
+        _set_cameras(database, [images[n].camera_id for n in names], cameras)
     finally:
         database.close()
 
-
-def match(database_path: Path, guided_matching: bool, seed: int, num_threads: int) -> None:
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = num_threads
     matching.guided_matching = guided_matching
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = seed
-    # Only for the diagnostics (PairReport): COLMAP's own relative pose, to compare with the given poses.
-    verification.compute_relative_pose = True
+    verification.compute_relative_pose = relative_pose
     pycolmap.set_random_seed(seed)
-    with colmap_stage("exhaustive matching"):
+    with colmap_stage("exhaustive matching", advice):
         pycolmap.match_exhaustive(
             database_path, matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu
         )
-
-
-@dataclass
-class PairReport:
-    """Matching outcome of one image pair, for progress logs and error messages."""
-
-    views: tuple[int, int]
-    num_inliers: int
-    rotation_error: float | None  # degrees between COLMAP's estimated relative rotation and the given poses' one
-    direction_error: float | None  # degrees between the estimated and the given directions of the baseline
-
-    def disagrees(self, max_rotation_error: float = 5.0, max_direction_error: float = 45.0) -> bool:
-        """Whether COLMAP's own relative pose contradicts the given one beyond its usual error on short baselines.
-
-        Defaults: on LLFF fern (2 views, images_8) the estimate is off by 1.3 deg and 16 deg; swapping two synthetic
-        cameras gives 11 deg and 175 deg.
-        """
-        if self.rotation_error is None or self.direction_error is None:
-            return False
-        return self.rotation_error > max_rotation_error or self.direction_error > max_direction_error
-
-    def describe(self) -> str:
-        off = ""
-        if self.rotation_error is not None and self.direction_error is not None:
-            off = (
-                f" (rotation off {self.rotation_error:.1f} deg, baseline direction off {self.direction_error:.0f} deg)"
-            )
-        return f"views {self.views}: {self.num_inliers} verified matches{off}"
-
-
-def verified_pairs(database_path: Path, names: list[str], c2w: np.ndarray) -> list[PairReport]:
     database = pycolmap.Database.open(database_path)
     try:
-        view_of = {image.image_id: names.index(image.name) for image in database.read_all_images()}
+        name_of = {image.image_id: image.name for image in database.read_all_images()}
         pair_ids, geometries = database.read_two_view_geometries()
     finally:
         database.close()
-    reports = {}
+    pairs = {}
     for pair_id, geometry in zip(pair_ids, geometries, strict=True):
-        id1, id2 = pycolmap.pair_id_to_image_pair(pair_id)
-        v1, v2 = view_of[id1], view_of[id2]
-        rotation_error = direction_error = None
-        if comparable(geometry):
-            pose1, pose2 = colmap_cam_from_world(c2w[v1]), colmap_cam_from_world(c2w[v2])
-            rotation = pose2[:, :3] @ pose1[:, :3].T
-            translation = pose2[:, 3] - rotation @ pose1[:, 3]
-            estimated = geometry.cam2_from_cam1
-            cosine = (np.trace(estimated.rotation.matrix().T @ rotation) - 1.0) / 2.0
-            rotation_error = float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
-            # Scale-free: an essential matrix only fixes the direction of the baseline.
-            cosine = unit(estimated.translation) @ unit(translation)
-            direction_error = float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
-        views = (min(v1, v2), max(v1, v2))
-        reports[views] = PairReport(views, len(geometry.inlier_matches), rotation_error, direction_error)
-    n = len(names)
-    # Pairs COLMAP dropped entirely (no match at all) are reported too, so the error lists every pair.
-    return [reports.get((a, b), PairReport((a, b), 0, None, None)) for a in range(n) for b in range(a + 1, n)]
+        if len(geometry.inlier_matches):
+            id1, id2 = pycolmap.pair_id_to_image_pair(pair_id)
+            pairs[(name_of[id1], name_of[id2])] = len(geometry.inlier_matches)
+    return Matches(keypoints, pairs)
 
 
-# Two-view configurations whose relative pose COLMAP estimates from the essential matrix. A PLANAR (or PANORAMIC)
-# pair's pose comes from decomposing a homography, which is ambiguous: on the demo's "objects" scene (a wall and a
-# floor fill most pixels) it is off by 4-10 deg and 50-160 deg although the given poses are exact (reprojection
-# error 0.03 px), so such pairs are not compared.
-POSE_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.CALIBRATED, pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED)
-
-
-def comparable(geometry) -> bool:
-    """Whether COLMAP's relative pose of this verified pair is a meaningful check of the given poses."""
-    return geometry.cam2_from_cam1 is not None and len(geometry.inlier_matches) > 0 and geometry.config in POSE_CONFIGS
-
-
-def unit(vector: np.ndarray) -> np.ndarray:
-    vector = np.asarray(vector, dtype=np.float64).reshape(3)
-    return vector / max(float(np.linalg.norm(vector)), 1e-300)
-
-
-def triangulate(
-    database_path: Path,
-    work_dir: Path,
-    names: list[str],
-    c2w: np.ndarray,
-    min_tri_angle: float,
-    max_reprojection_error: float,
-    seed: int,
-    num_threads: int,
-) -> pycolmap.Reconstruction:
-    database = pycolmap.Database.open(database_path)
-    try:
-        cameras, images = database.read_all_cameras(), database.read_all_images()
-    finally:
-        database.close()
-    reconstruction = pycolmap.Reconstruction()
-    for camera in cameras:
-        reconstruction.add_camera_with_trivial_rig(camera)
-    for image in images:
-        if image.frame_id != image.image_id or image.camera_id not in {c.camera_id for c in cameras}:
-            # The trivial rigs and frames made below must carry the database's ids, or COLMAP mixes up the images.
-            raise SparseDepthError(f"unexpected COLMAP database layout (image {image}); this pycolmap is unsupported")
-        # Same ids as in the database, so COLMAP's correspondence graph refers to these images.
-        pose = pycolmap.Rigid3d(colmap_cam_from_world(c2w[names.index(image.name)]))
-        reconstruction.add_image_with_trivial_frame(
-            pycolmap.Image(name=image.name, camera_id=image.camera_id, image_id=image.image_id), pose
-        )
-
-    options = pycolmap.IncrementalPipelineOptions()
-    options.num_threads = num_threads
-    options.random_seed = seed
-    options.extract_colors = False
-    # The DS-NeRF release: tri_ignore_two_view_tracks=0 (with 2 views every track is a two-view track) and
-    # init_min_tri_angle=4; the latter only picks the initial pair of a full reconstruction, inert with fixed poses.
-    options.triangulation.ignore_two_view_tracks = False
-    options.mapper.init_min_tri_angle = 4.0
-    options.triangulation.min_angle = min_tri_angle
-    options.mapper.filter_min_tri_angle = min_tri_angle
-    options.mapper.filter_max_reproj_error = max_reprojection_error
-    output_dir = work_dir / "sparse"
-    output_dir.mkdir()
-    with colmap_stage("triangulation"):
-        # Poses stay fixed: point_triangulator sets fix_existing_frames and refines neither poses nor intrinsics.
-        return pycolmap.triangulate_points(
-            reconstruction, database_path, work_dir / "images", output_dir, options=options, refine_intrinsics=False
-        )
-
-
-def collect(
-    reconstruction: pycolmap.Reconstruction,
-    names: list[str],
-    c2w: np.ndarray,
-    min_track_length: int,
-    percentile: tuple[float, float],
-) -> list[SparseDepth]:
-    points = reconstruction.points3D
-    by_name = {image.name: image for image in reconstruction.images.values()}
-    views = []
-    for index, name in enumerate(names):
-        image = by_name[name]
-        cam_from_world = image.cam_from_world().matrix()
-        # Depths are only meaningful along OUR rays if COLMAP kept the poses it was given.
-        if np.abs(cam_from_world - colmap_cam_from_world(c2w[index])).max() > 1e-6:
-            raise SparseDepthError(f"COLMAP changed the pose of view {index} during triangulation; it must stay fixed")
-        pixels, ids = [], []
-        for point2d in image.points2D:
-            if point2d.has_point3D() and points[point2d.point3D_id].track.length() >= min_track_length:
-                pixels.append(point2d.xy)
-                ids.append(point2d.point3D_id)
-        ids_np = np.array(ids, dtype=np.int64)
-        order = np.argsort(ids_np, kind="stable")
-        ids_np = ids_np[order]
-        pixels_np = np.array(pixels, dtype=np.float64).reshape(-1, 2)[order] - 0.5
-        xyz = np.array([points[i].xyz for i in ids_np], dtype=np.float64).reshape(-1, 3)
-        depth = xyz @ cam_from_world[2, :3] + cam_from_world[2, 3]
-        error = np.array([points[i].error for i in ids_np], dtype=np.float64)
-        keep = depth > 0  # COLMAP enforces cheirality; this guards the percentile range against a stray point
-        if keep.any():
-            low, high = np.percentile(depth[keep], percentile)
-            keep &= (depth >= low) & (depth <= high)
-        views.append(
-            SparseDepth(
-                pixels=pixels_np[keep].astype(np.float32),
-                depth=depth[keep].astype(np.float32),
-                reprojection_error=error[keep].astype(np.float32),
-                point_ids=ids_np[keep],
-            )
-        )
-    return views
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Cache
-
-
+def _set_cameras(database: pycolmap.Database, camera_ids: list[int], cameras: CameraSetup) -> None:
+    """Known parameters per image, or the focal priors: per camera, the median over the images it serves."""
+    if cameras.params is not None:
+        for camera_id, params in zip(camera_ids, cameras.params, strict=True):
+            camera = database.read_camera(camera_id)
+            camera.params = list(params)
+            database.update_camera(camera)
+        return
+    by_camera: dict[int, list[float]] = {}
+    for camera_id, prior in zip(camera_ids, cameras.focal_priors or [None] * len(camera_ids), strict=True):
+        if prior is not None:
+            by_camera.setdefault(camera_id, []).append(float(prior))
+    for camera_id, values in by_camera.items():
+        camera = database.read_camera(camera_id)
+        params = np.array(camera.params)
+        params[list(camera.focal_length_idxs())] = float(np.median(values))
+        camera.params = params
+        camera.has_prior_focal_length = True
+        database.update_camera(camera)

@@ -7,7 +7,8 @@ thresholds (`DEFAULT_ATTEMPTS`), and the attempt that registers the most photos 
 without verified matches to any other cannot register and are not waited for.
 
 Conventions are COLMAP's (world-to-camera poses, OpenCV axes, pixel centres at +0.5); `simplenerf.sfm.photos` turns
-the result into the LLFF layout. `simplenerf.sfm.colmap` holds the stages of SfM with KNOWN poses (sparse depth).
+the result into the LLFF layout. The first stage, SIFT and matching, is `simplenerf.sfm.colmap.extract_and_match`, as
+for the sparse depth of posed views.
 """
 
 from __future__ import annotations
@@ -17,12 +18,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import numpy as np
 import pycolmap
 from tqdm import tqdm
 
-from simplenerf.errors import DataError
-from simplenerf.sfm.colmap import colmap_log_level, colmap_stage
+from simplenerf.errors import DataError, SfMError
+from simplenerf.sfm.colmap import CameraSetup, colmap_log_level, colmap_stage, extract_and_match
 
 ADVICE = (
     "Try photos with more overlap (each part of the scene in 3 or more photos, taken a step apart rather than "
@@ -135,39 +135,33 @@ def run_sfm(
         log: where progress lines go.
 
     Raises:
-        DataError: fewer than 2 photos, no photo pair with verified matches, or no attempt that registers 2 photos
+        DataError: an unknown camera model.
+        SfMError: fewer than 2 photos, no photo pair with verified matches, or no attempt that registers 2 photos
             with 3D points; the message says what to try.
     """
     names = list(names)
     if len(names) < 2:
-        raise DataError(f"structure from motion needs at least 2 photos, got {len(names)}. {ADVICE}")
+        raise SfMError(f"structure from motion needs at least 2 photos, got {len(names)}. {ADVICE}")
     if camera_model not in CAMERA_MODELS:
         raise DataError(f"camera model {camera_model!r} is not one of {', '.join(CAMERA_MODELS)}")
     database_path = work_dir / "database.db"
     seconds: dict[str, float] = {}
     with colmap_log_level(verbose):
         start = time.perf_counter()
-        log(f"sfm: SIFT features of {len(names)} photos ...")
-        keypoints = _extract_features(
-            database_path, image_dir, names, shared_camera, camera_model, focal_priors, max_image_size,
-            max_num_features, num_threads,
-        )
-        seconds["features"] = time.perf_counter() - start
-        log(f"sfm: {min(keypoints.values())}-{max(keypoints.values())} keypoints per photo "
-            f"({seconds['features']:.0f} s)")
-
-        start = time.perf_counter()
         pairs = len(names) * (len(names) - 1) // 2
-        log(f"sfm: exhaustive matching of {pairs} photo pairs ...")
-        matches = _match(database_path, seed, num_threads)
-        seconds["matching"] = time.perf_counter() - start
-        log(f"sfm: {len(matches)} of {pairs} pairs have geometrically verified matches "
-            f"({seconds['matching']:.0f} s)")
+        log(f"sfm: SIFT features of {len(names)} photos and exhaustive matching of {pairs} pairs ...")
+        cameras = CameraSetup(camera_model, shared=shared_camera, focal_priors=focal_priors)
+        found = extract_and_match(database_path, image_dir, names, cameras, max_image_size=max_image_size,
+                                  max_num_features=max_num_features, seed=seed, num_threads=num_threads, advice=ADVICE)
+        keypoints, matches = found.keypoints, found.pairs
+        seconds["features_and_matching"] = time.perf_counter() - start
+        log(f"sfm: {min(keypoints.values())}-{max(keypoints.values())} keypoints per photo; {len(matches)} of {pairs} "
+            f"pairs have geometrically verified matches ({seconds['features_and_matching']:.0f} s)")
         # Photos without enough verified matches to any other can never register: no attempt waits for them.
         fewest = min(a.min_num_matches for a in attempts)
         reachable = {name for pair, count in matches.items() if count >= fewest for name in pair}
         if not matches:
-            raise DataError(f"no two of the {len(names)} photos share verified SIFT matches, so no camera can be "
+            raise SfMError(f"no two of the {len(names)} photos share verified SIFT matches, so no camera can be "
                             f"placed. {ADVICE}")
 
         outcomes: list[AttemptOutcome] = []
@@ -195,7 +189,7 @@ def run_sfm(
 
     if best is None or best.num_reg_images() < 2 or best.num_points3D() == 0:
         tried = "; ".join(f"{o.name}: {o.registered} registered, {o.points} points" for o in outcomes)
-        raise DataError(
+        raise SfMError(
             f"structure from motion could not place at least 2 of the {len(names)} photos with 3D points ({tried}). "
             f"{ADVICE}"
         )
@@ -204,83 +198,6 @@ def run_sfm(
 
 # ----------------------------------------------------------------------------------------------------------------
 # COLMAP stages
-
-
-def _extract_features(
-    database_path: Path,
-    image_dir: Path,
-    names: list[str],
-    shared_camera: bool,
-    camera_model: str,
-    focal_priors: Sequence[float | None] | None,
-    max_image_size: int,
-    max_num_features: int,
-    num_threads: int,
-) -> dict[str, int]:
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = camera_model
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = num_threads
-    extraction.max_image_size = max_image_size
-    extraction.sift.max_num_features = max_num_features
-    with colmap_stage("SIFT feature extraction", DataError, ADVICE):
-        pycolmap.extract_features(
-            database_path,
-            image_dir,
-            image_names=names,
-            camera_mode=pycolmap.CameraMode.SINGLE if shared_camera else pycolmap.CameraMode.PER_IMAGE,
-            reader_options=reader,
-            extraction_options=extraction,
-            device=pycolmap.Device.cpu,
-        )
-    priors = list(focal_priors) if focal_priors is not None else [None] * len(names)
-    database = pycolmap.Database.open(database_path)
-    try:
-        images = {image.name: image for image in database.read_all_images()}
-        missing = [n for n in names if n not in images]
-        if missing:
-            raise DataError(f"COLMAP could not read {', '.join(missing)}")
-        keypoints = {n: int(database.num_keypoints_for_image(images[n].image_id)) for n in names}
-        # The EXIF focal length as the prior: per camera, the median over the photos it serves that have one.
-        by_camera: dict[int, list[float]] = {}
-        for name, prior in zip(names, priors, strict=True):
-            if prior is not None:
-                by_camera.setdefault(images[name].camera_id, []).append(float(prior))
-        for camera_id, values in by_camera.items():
-            camera = database.read_camera(camera_id)
-            params = np.array(camera.params)
-            params[list(camera.focal_length_idxs())] = float(np.median(values))
-            camera.params = params
-            camera.has_prior_focal_length = True
-            database.update_camera(camera)
-    finally:
-        database.close()
-    return keypoints
-
-
-def _match(database_path: Path, seed: int, num_threads: int) -> dict[tuple[str, str], int]:
-    """Exhaustive SIFT matching + RANSAC verification; returns the verified matches of each pair of image names."""
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = num_threads
-    verification = pycolmap.TwoViewGeometryOptions()
-    verification.ransac.random_seed = seed
-    pycolmap.set_random_seed(seed)
-    with colmap_stage("exhaustive matching", DataError, ADVICE):
-        pycolmap.match_exhaustive(
-            database_path, matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu
-        )
-    database = pycolmap.Database.open(database_path)
-    try:
-        name_of = {image.image_id: image.name for image in database.read_all_images()}
-        pair_ids, geometries = database.read_two_view_geometries()
-    finally:
-        database.close()
-    pairs = {}
-    for pair_id, geometry in zip(pair_ids, geometries, strict=True):
-        if len(geometry.inlier_matches):
-            id1, id2 = pycolmap.pair_id_to_image_pair(pair_id)
-            pairs[(name_of[id1], name_of[id2])] = len(geometry.inlier_matches)
-    return pairs
 
 
 def _map(
@@ -313,7 +230,7 @@ def _map(
         def registered_more(count: int) -> None:
             bar.update(min(count, bar.total - bar.n))
 
-        with colmap_stage("incremental mapping", DataError, ADVICE):
+        with colmap_stage("incremental mapping", ADVICE):
             models = pycolmap.incremental_mapping(
                 database_path, image_dir, output_dir, options=options,
                 initial_image_pair_callback=lambda: registered_more(2),

@@ -14,7 +14,7 @@ import numpy as np
 import pycolmap
 from PIL import Image, ImageOps, UnidentifiedImageError
 
-from simplenerf.errors import DataError
+from simplenerf.errors import DataError, SfMError
 from simplenerf.sfm.mapping import ADVICE
 
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
@@ -172,7 +172,7 @@ def undistortion(camera: pycolmap.Camera) -> Undistortion:
 
     low, high = 0.25, 4.0
     if not inside(high):
-        raise DataError(f"the estimated camera ({camera.model.name}, {camera.params.tolist()}) distorts so strongly "
+        raise SfMError(f"the estimated camera ({camera.model.name}, {camera.params.tolist()}) distorts so strongly "
                         f"that no undistorted view fits in the photo; try --camera-model SIMPLE_PINHOLE. {ADVICE}")
     for _ in range(50):
         middle = 0.5 * (low + high)

@@ -40,10 +40,10 @@ import pycolmap
 from PIL import Image, UnidentifiedImageError
 from tqdm import tqdm
 
-from simplenerf.errors import DataError
+from simplenerf.errors import DataError, SfMError
 from simplenerf.geometry.alignment import CameraAlignment, align_cameras
 from simplenerf.geometry.poses import poses_to_opengl, to_poses_bounds
-from simplenerf.sfm.colmap import GL_TO_CV
+from simplenerf.sfm.colmap import opengl_c2w_of_image
 from simplenerf.sfm.mapping import ADVICE, CAMERA_MODELS, SfMResult, run_sfm
 from simplenerf.sfm.photo_files import (
     common_size,
@@ -58,14 +58,6 @@ from simplenerf.sfm.process_checks import MARKER, check_output_folder, check_wri
 from simplenerf.sfm.top_view import top_view_picture
 
 BOUND_PERCENTILES = (0.1, 99.9)  # LLFF's pose_utils.save_poses: np.percentile(zs, .1), np.percentile(zs, 99.9)
-def opengl_c2w_of_image(image: pycolmap.Image) -> np.ndarray:
-    """[3, 4] camera-to-world in OpenGL axes (right, up, back) of a registered COLMAP image."""
-    cam_from_world = image.cam_from_world().matrix()
-    rotation = cam_from_world[:, :3].T  # camera-to-world rotation, OpenCV axes
-    centre = -rotation @ cam_from_world[:, 3]
-    return np.concatenate([rotation @ GL_TO_CV, centre[:, None]], axis=1)
-
-
 def depth_bounds(reconstruction: pycolmap.Reconstruction, image: pycolmap.Image,
                  percentiles: tuple[float, float] = BOUND_PERCENTILES) -> tuple[float, float]:
     """(near, far) of a registered image: percentiles of the camera z-depths of the 3D points it observes (LLFF's
@@ -84,7 +76,7 @@ def depth_bounds(reconstruction: pycolmap.Reconstruction, image: pycolmap.Image,
     depth = xyz @ cam_from_world[2, :3] + cam_from_world[2, 3]
     depth = depth[depth > 0]
     if len(depth) == 0:
-        raise DataError(f"photo {image.name} sees no 3D point in front of it; the reconstruction is broken. {ADVICE}")
+        raise SfMError(f"photo {image.name} sees no 3D point in front of it; the reconstruction is broken. {ADVICE}")
     near, far = np.percentile(depth, percentiles)
     return float(near), float(far)
 

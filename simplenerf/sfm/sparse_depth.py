@@ -38,19 +38,9 @@ from typing import Any, BinaryIO
 import numpy as np
 from numpy.typing import ArrayLike
 
-from simplenerf.sfm.colmap import (
-    ADVICE,
-    SparseDepth,
-    SparseDepthError,
-    collect,
-    colmap_log_level,
-    extract_features,
-    log,
-    match,
-    triangulate,
-    verified_pairs,
-    write_images,
-)
+from simplenerf.errors import SfMError
+from simplenerf.sfm.colmap import CameraSetup, colmap_log_level, colmap_pinhole_params, extract_and_match, log
+from simplenerf.sfm.known_poses import ADVICE, SparseDepth, collect, triangulate, verified_pairs, write_images
 
 logger = logging.getLogger(__name__)
 
@@ -92,15 +82,15 @@ def compute_sparse_depth(
         One `SparseDepth` per view, in input order, sorted by 3D point id.
 
     Raises:
-        SparseDepthError: bad inputs, degenerate poses (zero baseline), an image without SIFT features, or no
+        SfMError: bad inputs, degenerate poses (zero baseline), an image without SIFT features, or no
             triangulated point.
     """
     images_u8 = _as_uint8_images(images)
     intrinsics_np, c2w_np = _validate_cameras(intrinsics, c2w, images_u8)
     if not 0.0 <= percentile[0] < percentile[1] <= 100.0:
-        raise SparseDepthError(f"percentile must satisfy 0 <= low < high <= 100, got {percentile}")
+        raise SfMError(f"percentile must satisfy 0 <= low < high <= 100, got {percentile}")
     if min_track_length < 2:
-        raise SparseDepthError(f"min_track_length must be >= 2 (a point needs two views), got {min_track_length}")
+        raise SfMError(f"min_track_length must be >= 2 (a point needs two views), got {min_track_length}")
 
     with tempfile.TemporaryDirectory(prefix="simplenerf-sfm-") as work, colmap_log_level(verbose=progress):
         work_dir = Path(work)
@@ -108,17 +98,19 @@ def compute_sparse_depth(
         names = write_images(images_u8, work_dir / "images")
         database_path = work_dir / "database.db"
         max_size = max(max(image.shape[:2]) for image in images_u8)
-        extract_features(
-            database_path, work_dir / "images", names, intrinsics_np, max_size, max_num_features, num_threads
+        # One PINHOLE camera per view with its own intrinsics, never downscaled: keypoints must be as precise as the
+        # training pixels.
+        cameras = CameraSetup("PINHOLE", params=[colmap_pinhole_params(k) for k in intrinsics_np])
+        extract_and_match(
+            database_path, work_dir / "images", names, cameras, max_image_size=max_size,
+            max_num_features=max_num_features, seed=seed, num_threads=num_threads, advice=ADVICE,
+            guided_matching=guided_matching, relative_pose=True, require_features=True,
         )
-        log(progress, "sparse depth: SIFT on %d images took %.1f s", len(names), time.perf_counter() - start)
-
-        start = time.perf_counter()
-        match(database_path, guided_matching, seed, num_threads)
         pairs = verified_pairs(database_path, names, c2w_np)
         log(
             progress,
-            "sparse depth: matching took %.1f s; %s",
+            "sparse depth: SIFT and matching of %d images took %.1f s; %s",
+            len(names),
             time.perf_counter() - start,
             ", ".join(p.describe() for p in pairs),
         )
@@ -130,7 +122,7 @@ def compute_sparse_depth(
                 ", ".join(p.describe() for p in suspicious),
             )
         if not any(p.num_inliers > 0 for p in pairs):
-            raise SparseDepthError(
+            raise SfMError(
                 f"no image pair has geometrically verified SIFT matches among the {len(names)} views "
                 f"({', '.join(p.describe() for p in pairs)}), so no point can be triangulated. {ADVICE}"
             )
@@ -148,7 +140,7 @@ def compute_sparse_depth(
         if reconstruction.num_points3D() == 0:
             centres = c2w_np[:, :, 3]
             baseline = np.linalg.norm(centres[:, None] - centres[None], axis=-1).max()
-            raise SparseDepthError(
+            raise SfMError(
                 f"triangulation with the given poses kept 0 points from the verified matches "
                 f"({', '.join(p.describe() for p in pairs)}; largest baseline {baseline:.3g} scene units; points "
                 f"need a triangulation angle >= {min_tri_angle} deg and reprojection error <= "
@@ -160,7 +152,7 @@ def compute_sparse_depth(
         if len(view) == 0:
             logger.warning("sparse depth: view %d has no triangulated point (no overlap with the other views?)", index)
     if sum(len(v) for v in views) == 0:
-        raise SparseDepthError(
+        raise SfMError(
             f"no 3D point is seen in at least {min_track_length} views (min_track_length). {ADVICE}"
         )
     return views
@@ -265,17 +257,17 @@ def _as_uint8_images(images: Sequence[ArrayLike] | ArrayLike) -> list[np.ndarray
     for index, image in enumerate(images):
         array = _numpy(image)
         if array.ndim != 3 or array.shape[2] != 3:
-            raise SparseDepthError(f"image {index} has shape {array.shape}, expected [H, W, 3] RGB")
+            raise SfMError(f"image {index} has shape {array.shape}, expected [H, W, 3] RGB")
         if array.dtype == np.uint8:
             out.append(np.ascontiguousarray(array))
         elif np.issubdtype(array.dtype, np.floating):
             if not (np.isfinite(array).all() and array.min() >= 0.0 and array.max() <= 1.0):
-                raise SparseDepthError(f"image {index} is floating point but not in [0, 1]; pass uint8 or [0, 1]")
+                raise SfMError(f"image {index} is floating point but not in [0, 1]; pass uint8 or [0, 1]")
             out.append(np.rint(array * 255.0).astype(np.uint8))
         else:
-            raise SparseDepthError(f"image {index} has dtype {array.dtype}, expected uint8 or float in [0, 1]")
+            raise SfMError(f"image {index} has dtype {array.dtype}, expected uint8 or float in [0, 1]")
     if len(out) < 2:
-        raise SparseDepthError(f"sparse depth needs at least 2 views, got {len(out)}")
+        raise SfMError(f"sparse depth needs at least 2 views, got {len(out)}")
     return out
 
 
@@ -285,19 +277,19 @@ def _validate_cameras(intrinsics: ArrayLike, c2w: ArrayLike, images: list[np.nda
     c2w_np = _numpy(c2w).astype(np.float64)
     n = len(images)
     if intrinsics_np.shape != (n, 3, 3) or c2w_np.shape != (n, 3, 4):
-        raise SparseDepthError(
+        raise SfMError(
             f"expected intrinsics [{n}, 3, 3] and c2w [{n}, 3, 4] for {n} images, got {intrinsics_np.shape} and "
             f"{c2w_np.shape}"
         )
     if not (np.isfinite(intrinsics_np).all() and np.isfinite(c2w_np).all()):
-        raise SparseDepthError("intrinsics or c2w contain NaN or inf")
+        raise SfMError("intrinsics or c2w contain NaN or inf")
     for index in range(n):
         k = intrinsics_np[index]
         if k[0, 0] <= 0 or k[1, 1] <= 0 or abs(k[0, 1]) > 1e-6 * k[0, 0]:
-            raise SparseDepthError(f"view {index}: intrinsics need fx > 0, fy > 0 and no skew, got\n{k}")
+            raise SfMError(f"view {index}: intrinsics need fx > 0, fy > 0 and no skew, got\n{k}")
         rotation = c2w_np[index, :, :3]
         if np.abs(rotation.T @ rotation - np.eye(3)).max() > 1e-3 or np.linalg.det(rotation) < 0:
-            raise SparseDepthError(
+            raise SfMError(
                 f"view {index}: the c2w rotation is not a rotation (orthonormal, det +1):\n{rotation}"
             )
         # COLMAP stores quaternions; snap the float32 round-off to the nearest rotation so it converts exactly.
@@ -307,7 +299,7 @@ def _validate_cameras(intrinsics: ArrayLike, c2w: ArrayLike, images: list[np.nda
     baselines = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
     tolerance = 1e-9 * max(1.0, float(np.abs(centres).max()))
     if baselines.max() <= tolerance:
-        raise SparseDepthError(
+        raise SfMError(
             f"degenerate poses: all {n} camera centres coincide (largest baseline {baselines.max():.3g}), so the "
             f"views have zero baseline and no depth can be triangulated; check c2w (translation in column 3)"
         )

@@ -17,8 +17,10 @@ import torch
 
 import simplenerf.sfm.sparse_depth as sparse_depth_module
 from simplenerf.data.llff import load_llff_scene, subset
+from simplenerf.errors import SfMError
 from simplenerf.geometry.rays import pixel_rays, project
-from simplenerf.sfm.colmap import SparseDepth, SparseDepthError, colmap_cam_from_world, colmap_pinhole_params
+from simplenerf.sfm.colmap import colmap_cam_from_world, colmap_pinhole_params
+from simplenerf.sfm.known_poses import SparseDepth
 from simplenerf.sfm.sparse_depth import compute_sparse_depth, load_or_compute_sparse_depth
 from simplenerf.synthetic.generate import make_synthetic_scene
 from tests.conftest import require_shared
@@ -135,7 +137,7 @@ def test_textureless_images_raise_about_features() -> None:
     intrinsics = np.stack([np.array([[300.0, 0, WIDTH / 2], [0, 300.0, HEIGHT / 2], [0, 0, 1]])] * 2)
     c2w = np.stack([np.eye(3, 4), np.eye(3, 4)])
     c2w[1, 0, 3] = 0.5
-    with pytest.raises(SparseDepthError, match="no SIFT features"):
+    with pytest.raises(SfMError, match="no SIFT features"):
         compute_sparse_depth(images, intrinsics, c2w)
 
 
@@ -143,27 +145,27 @@ def test_identical_camera_centres_raise_about_baseline(synthetic: dict) -> None:
     views, _ = synthetic[2]
     c2w = views.c2w.clone()
     c2w[1, :, 3] = c2w[0, :, 3]
-    with pytest.raises(SparseDepthError, match="baseline"):
+    with pytest.raises(SfMError, match="baseline"):
         compute_sparse_depth(_uint8(views.images), views.intrinsics, c2w)
 
 
 def test_no_surviving_point_raises_with_advice(synthetic: dict) -> None:
     # An impossible triangulation angle rejects every point: the error must come from us, with advice, not COLMAP.
     views, _ = synthetic[2]
-    with pytest.raises(SparseDepthError, match="kept 0 points.*more views"):
+    with pytest.raises(SfMError, match="kept 0 points.*more views"):
         compute_sparse_depth(_uint8(views.images), views.intrinsics, views.c2w, min_tri_angle=60.0)
 
 
 def test_bad_inputs_raise_clearly(synthetic: dict) -> None:
     views, _ = synthetic[2]
     images = _uint8(views.images)
-    with pytest.raises(SparseDepthError, match="at least 2 views"):
+    with pytest.raises(SfMError, match="at least 2 views"):
         compute_sparse_depth(images[:1], views.intrinsics[:1], views.c2w[:1])
-    with pytest.raises(SparseDepthError, match="expected intrinsics"):
+    with pytest.raises(SfMError, match="expected intrinsics"):
         compute_sparse_depth(images, views.intrinsics[:1], views.c2w)
     scaled = views.c2w.clone()
     scaled[0, :, :3] *= 2.0
-    with pytest.raises(SparseDepthError, match="not a rotation"):
+    with pytest.raises(SfMError, match="not a rotation"):
         compute_sparse_depth(images, views.intrinsics, scaled)
 
 
@@ -208,7 +210,7 @@ def test_only_essential_matrix_poses_are_compared_with_the_given_poses():
     """A planar pair's relative pose comes from an ambiguous homography decomposition: no pose warning from it."""
     from types import SimpleNamespace
 
-    from simplenerf.sfm.colmap import comparable
+    from simplenerf.sfm.known_poses import comparable
 
     config = pycolmap.TwoViewGeometryConfiguration
     pair = dict(cam2_from_cam1=pycolmap.Rigid3d(), inlier_matches=np.zeros((10, 2)))

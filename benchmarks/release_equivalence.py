@@ -42,13 +42,14 @@ from benchmarks.equivalence.weights import copy_release_weights  # noqa: E402
 def our_module(config: Path, scene_dir: Path, views: int, factor: int):
     """Our SimpleNeRF from the paper config, with the release-faithful switches (module docstring)."""
     from simplenerf.lightning_cli import make_cli
+    from simplenerf.method.reliability import PatchReprojectionMask
 
     args = ["--config", str(config), "--data.init_args.scene_dir", str(scene_dir), "--data.init_args.n_views",
             str(views), "--data.init_args.factor", str(factor), "--model.rays_per_backward", "null",
             "--trainer.logger", "false"]
     module = make_cli(args, run=False).model
     for mask in [aug.mask for aug in module.augmentations] + [module.coarse_fine_mask]:
-        if mask is not None and hasattr(mask, "require_in_front"):
+        if isinstance(mask, PatchReprojectionMask):
             mask.require_in_front = False
     return module
 

@@ -81,6 +81,7 @@ class Checkpointing(ModelCheckpoint):
             save_last=True,
             enable_version_counter=False,  # a resumed run overwrites its own step files and last.ckpt
         )
+        self._training = False  # whether training steps have started (a restore is complete)
 
     def on_train_end(self, trainer, pl_module) -> None:
         # max_steps need not be a multiple of every_n_train_steps: the final weights still end up in last.ckpt.
@@ -96,7 +97,7 @@ class Checkpointing(ModelCheckpoint):
         # they before training started (a restore may be half done), or after a second signal that stopped a step
         # half way (`interrupts.Interrupted`); a first SIGTERM or SIGINT stops between steps (Lightning's
         # SIGTERMException), where the state is whole and is saved.
-        if isinstance(exception, (TrainingDiverged, Interrupted)) or not getattr(self, "_training", False):
+        if isinstance(exception, (TrainingDiverged, Interrupted)) or not self._training:
             return
         if trainer.state.fn == "fit" and self.dirpath is not None and trainer.global_step > 0:
             trainer.save_checkpoint(f"{self.dirpath}/last.ckpt")

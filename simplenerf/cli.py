@@ -14,7 +14,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from simplenerf import interrupts
 from simplenerf.console import PROG, quiet_libraries
-from simplenerf.errors import SimpleNeRFError
+from simplenerf.errors import SimpleNeRFError, Stopped
 from simplenerf.lightning_cli import make_cli
 from simplenerf.metrics.lpips import LPIPSWeightsNotFound
 
@@ -29,13 +29,13 @@ def run_tool(main_function: Callable[[], None], name: str) -> None:
         main_function()
     except (SimpleNeRFError, LPIPSWeightsNotFound, MisconfigurationException) as e:
         print(f"{name}: error: {e}", file=sys.stderr)
-        sys.exit(getattr(e, "exit_status", 2))
+        sys.exit(e.exit_status if isinstance(e, SimpleNeRFError) else 2)
     except (KeyboardInterrupt, SystemExit, Exception) as e:
         # After a signal, any error is its consequence: a library that was running native code (pycolmap's SfM) may
         # turn the pending interrupt into its own exception. Without a signal, only KeyboardInterrupt is a stop.
         if interrupts.received is None and not isinstance(e, KeyboardInterrupt):
             raise
-        signum = interrupts.received or getattr(e, "signum", None) or signal.SIGINT
+        signum = interrupts.received or (e.signum if isinstance(e, Stopped) else None) or signal.SIGINT
         print(f"{name}: error: stopped by {interrupts.name(signum)} before it finished", file=sys.stderr)
         sys.exit(interrupts.exit_status(signum))
 

@@ -17,7 +17,7 @@ from simplenerf.lightning_cli import make_cli
 def main() -> None:
     cli = make_cli([*sys.argv[1:], "--trainer.logger", "false"], run=False)
     dm = cli.datamodule
-    if not getattr(dm, "sparse_rays_per_batch", 0):
+    if not dm.sparse_rays_per_batch:
         sys.exit("this config does not use sparse depth (data.init_args.sparse_rays_per_batch is 0)")
     dm.setup("fit")  # computes (or finds) the cache and prints a line per view
 

@@ -143,9 +143,10 @@ def slurm_parameters(resources: Resources, name: str, stage: str) -> dict:
                                         "chdir": str(Path.cwd()), **resources.slurm_args}}
     if resources.gpus_per_job:
         params["gpus_per_node"] = resources.gpus_per_job
-    for key in ("partition", "account"):
-        if getattr(resources, key):
-            params[key] = getattr(resources, key)
+    if resources.partition:
+        params["partition"] = resources.partition
+    if resources.account:
+        params["account"] = resources.account
     if resources.mem_gb:
         params["mem"] = f"{int(resources.mem_gb * 1024)}MB"
     return params

@@ -46,7 +46,8 @@ class Samples:
     def _encoding(self, name: str, x: torch.Tensor, bands: int) -> torch.Tensor:
         if self._parent is not None:
             parent, index = self._parent
-            return parent._encoding(name, getattr(parent, name), bands)[index]
+            source = parent.positions if name == "positions" else parent.directions
+            return parent._encoding(name, source, bands)[index]
         # gamma's blocks are ordered by frequency, so fewer bands are a leading slice of the cached encoding.
         cached = self._encodings.get(name)
         if cached is None or cached.shape[-1] < encoded_dim(3, bands):

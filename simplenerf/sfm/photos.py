@@ -148,7 +148,7 @@ def process_photos(
     except OSError as e:
         shutil.rmtree(partial, ignore_errors=True)
         raise DataError(f"cannot write the output {output_dir}: {e.strerror or e}"
-                        + (f" ({e.filename})" if getattr(e, "filename", None) else "")) from None
+                        + (f" ({e.filename})" if e.filename else "")) from None
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
         raise

@@ -11,6 +11,7 @@ from jsonargparse.typing import PositiveInt
 
 from simplenerf.method.reliability import mask_fractions
 from simplenerf.metrics.scores import psnr
+from simplenerf.module import SimpleNeRF
 from simplenerf.viz.pictures import (
     colorize_depth,
     colorize_error,
@@ -97,9 +98,9 @@ class ValidationRenders(L.Callback):
             publish_picture(trainer, f"val/render_{kind}", pictures[kind], f"step{step:06d}_{kind}.png",
                             captions[kind], log=self.log_images, save=self.save_to_disk)
 
-    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: SimpleNeRF) -> None:
         """The reliability masks on the first train view: fractions of +1 / -1 / 0 and a picture per mask."""
-        if trainer.sanity_checking or getattr(pl_module, "train_views", None) is None:
+        if trainer.sanity_checking or pl_module.train_views is None:
             return
         for name, m in pl_module.reliability_maps(view=0).items():
             pl_module.log_dict({f"val/mask_{name}/{k}": v for k, v in mask_fractions(m).items()}, sync_dist=True)

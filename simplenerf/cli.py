@@ -17,18 +17,15 @@ from __future__ import annotations
 
 import os
 import re
-import signal
 import sys
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import yaml
 from jsonargparse import lazy_instance
 from lightning.pytorch import LightningDataModule
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
 from lightning.pytorch.utilities import rank_zero_only
-from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
 from simplenerf import interrupts
 from simplenerf.callbacks import (
@@ -48,7 +45,7 @@ from simplenerf.checks import (
     read_checkpoint,
     resolve_checkpoint,
 )
-from simplenerf.console import PROG, HeldLogs, OneLineErrorParser, quiet_libraries
+from simplenerf.console import PROG, HeldLogs, parser_error_line, run_tool
 from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged
 from simplenerf.evaluation.evaluator import Evaluator
 from simplenerf.evaluation.lpips import LPIPSWeightsNotFound
@@ -73,6 +70,20 @@ DESCRIPTION = (
     "scores every test frame into <run>/test, predict renders the test frames. Start from a config in configs/, "
     "e.g. `simplenerf fit --config configs/demo.yaml`; `simplenerf fit --help` lists every option."
 )
+
+
+class OneLineErrorParser(LightningArgumentParser):
+    """The CLI's parser: a bad option or config ends with the error line first (`simplenerf: error: ...`), then at
+    most one hint line, and exit status 2, instead of the full usage followed by nested causes."""
+
+    def error(self, message: str, ex: Exception | None = None) -> NoReturn:
+        if not self.exit_on_error:
+            super().error(message, ex)
+        parser = getattr(ex, "subcommand_parser", None) or self
+        line, hint = parser_error_line(message, parser)
+        sys.stderr.write(f"{PROG}: error: {line}\n{hint}\n")
+        sys.exit(2)
+
 
 
 class RunConfig(SaveConfigCallback):
@@ -100,6 +111,11 @@ class SimpleNeRFCLI(LightningCLI):
             self._held_logs.release(emit=False)
             raise
         self._held_logs.release()
+
+    def parse_arguments(self, parser: LightningArgumentParser, args: Any) -> None:
+        """As Lightning's, without its warning against giving `args` while sys.argv holds arguments: `make_cli`
+        always passes the arguments itself (those of sys.argv, or a tool's or a test's)."""
+        self.config = parser.parse_args(args)
 
     def add_arguments_to_parser(self, parser) -> None:
         parser.add_lightning_class_args(Checkpointing, "checkpoint")
@@ -324,9 +340,6 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
         drop = SUBCOMMAND_KEYS
     else:
         drop = {"fit": (), "test": ("overwrite",)}.get(given[0] if given else "", ("overwrite", "allow_changes"))
-    if drop:  # (otherwise args stay as given: Lightning warns when args and sys.argv both hold arguments)
-        readable = without_subcommand_keys(given, drop)
-        args = readable if readable != given else args
     return cli_class(
         SimpleNeRF,
         LightningDataModule,
@@ -338,7 +351,7 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
         parser_kwargs={"prog": PROG, "description": DESCRIPTION},
         seed_everything_default=0,
         run=run,
-        args=args,
+        args=without_subcommand_keys(given, drop) if drop else given,
     )
 
 
@@ -359,46 +372,7 @@ def load_for_tool(
     return cli
 
 
-def run_tool(main_function: Callable[[], None], name: str) -> None:
-    """Runs an entry point's main; bad input ends with one `<name>: error:` line and exit status 2 (a diverged
-    training: 1), as in `main`; a SIGINT or SIGTERM with one line and 128 + the signal's number
-    (`simplenerf.interrupts`; docs/running.md)."""
-    quiet_libraries()
-    interrupts.install()
-    try:
-        main_function()
-    except (SimpleNeRFError, LPIPSWeightsNotFound, MisconfigurationException) as e:
-        print(f"{name}: error: {e}", file=sys.stderr)
-        sys.exit(getattr(e, "exit_status", 2))
-    except (KeyboardInterrupt, SystemExit, Exception) as e:
-        # After a signal, any error is its consequence: a library that was running native code (pycolmap's SfM) may
-        # turn the pending interrupt into its own exception. Without a signal, only KeyboardInterrupt is a stop.
-        if interrupts.received is None and not isinstance(e, KeyboardInterrupt):
-            raise
-        signum = interrupts.received or getattr(e, "signum", None) or signal.SIGINT
-        print(f"{name}: error: stopped by {interrupts.name(signum)} before it finished", file=sys.stderr)
-        sys.exit(interrupts.exit_status(signum))
-
-
-def split_overrides(argv: list[str]) -> tuple[list[str], list[str]]:
-    """A tool's own arguments and, after `--`, the overrides it passes to the CLI."""
-    if "--" not in argv:
-        return argv, []
-    i = argv.index("--")
-    return argv[:i], argv[i + 1 :]
-
-
-def main(args: list[str] | None = None) -> None:
-    """Entry point; bad input ends with one `error:` line and exit status 2 instead of a traceback."""
-    argv = sys.argv[1:] if args is None else args
-    if argv[:1] == ["sweep"]:  # scenes x views x models x seeds as jobs (simplenerf.experiments), not a Lightning one
-        from simplenerf.experiments.command import main as sweep
-
-        run_tool(lambda: sweep(argv[1:]), PROG)
-        return
-    if argv[:1] == ["process-data"]:  # photos -> an LLFF-layout scene (simplenerf.data.photos); not a Lightning command
-        from simplenerf.data.photos import main as process_data
-
-        run_tool(lambda: process_data(argv[1:]), PROG)
-        return
+def main(args: list[str]) -> None:
+    """The Lightning verbs, `simplenerf {fit,validate,test,predict} ...` (`args` starts with the verb; the dispatcher
+    is `simplenerf.commands.main`): bad input ends with one `error:` line and exit status 2 instead of a traceback."""
     run_tool(lambda: make_cli(args), PROG)

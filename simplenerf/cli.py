@@ -358,8 +358,9 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
 def load_for_tool(
     configs: list[str], overrides: list[str], stage: str = "test", ckpt: str | None = None, device: str = "cpu"
 ) -> LightningCLI:
-    """What the tools in tools/ start from: the CLI of `configs` + `overrides` without a logger, its data module set
-    up for `stage` and, with `ckpt`, the model's trained weights loaded (eval mode, on `device`)."""
+    """What the verbs that read a run start from (`simplenerf render-video`, ...): the CLI of `configs` + `overrides`
+    without a logger, its data module set up for `stage` and, with `ckpt`, the model's trained weights loaded (eval
+    mode, on `device`)."""
     if ckpt is not None and not Path(ckpt).is_file():
         raise DataError(f"checkpoint {ckpt} does not exist")
     cli = make_cli([*(a for c in configs for a in ("--config", c)), *overrides, "--trainer.logger", "false"], run=False)

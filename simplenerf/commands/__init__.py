@@ -14,6 +14,7 @@ import argparse
 import difflib
 import importlib
 import sys
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NoReturn
@@ -82,7 +83,7 @@ def overview() -> str:
     """`simplenerf --help`: every verb with its line."""
     width = max(map(len, VERBS))
     lines = [f"usage: {PROG} <command> [options]    (`{PROG} <command> --help`: its options and an example)", "",
-             DESCRIPTION, "", "commands:"]
+             textwrap.fill(DESCRIPTION, 100), "", "commands:"]
     lines += [f"  {name:<{width}}  {verb.summary}" for name, verb in VERBS.items()]
     return "\n".join(lines)
 

@@ -176,7 +176,7 @@ class RealEstateDataModule(SceneDataModule):
     images lag their pose by one frame. That is the data as distributed; it is read as is.
     """
 
-    video_trajectory = "recorded"  # tools/render_video.py follows the clip's own camera path (LLFF: a spiral)
+    video_trajectory = "recorded"  # `simplenerf render-video` follows the clip's own camera path (LLFF: a spiral)
 
     def __init__(
         self, scene_dir: str, clip_start: NonNegativeInt = 0, clip_length: PositiveInt = 50,

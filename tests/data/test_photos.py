@@ -15,7 +15,7 @@ import pytest
 from PIL import Image
 from PIL.TiffImagePlugin import IFDRational
 
-from simplenerf.cli import main as cli_main
+from simplenerf.commands import main as cli_main
 from simplenerf.data.llff import load_llff_scene, poses_to_opengl
 from simplenerf.data.photo_files import common_size, exif_focal_pixels, fit_to_size, read_photo, undistort, undistortion
 from simplenerf.data.photos import compare_with_reference, process_photos, to_poses_bounds

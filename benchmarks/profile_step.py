@@ -120,10 +120,6 @@ def profile_table(result: dict) -> str:
     return "\n".join(lines)
 
 
-# ---------------------------------------------------------------------------------------------------------------------
-# Command lines of benchmarks/train_step.py, benchmarks/render.py and benchmarks/profile_step.py
-
-
 def main(argv: list[str] | None = None) -> dict:
     args, overrides, cli = training_args(sys.argv[1:] if argv is None else argv, __doc__,
                                          {"top": (25, "operators to list")}, prog="python -m benchmarks.profile_step")

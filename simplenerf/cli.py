@@ -45,7 +45,7 @@ from simplenerf.checks import (
     read_checkpoint,
     resolve_checkpoint,
 )
-from simplenerf.console import PROG, HeldLogs, parser_error_line, run_tool
+from simplenerf.console import PROG, HeldLogs, parser_error_line
 from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged
 from simplenerf.evaluation.evaluator import Evaluator
 from simplenerf.evaluation.lpips import LPIPSWeightsNotFound
@@ -373,7 +373,14 @@ def load_for_tool(
     return cli
 
 
-def main(args: list[str]) -> None:
-    """The Lightning verbs, `simplenerf {fit,validate,test,predict} ...` (`args` starts with the verb; the dispatcher
-    is `simplenerf.commands.main`): bad input ends with one `error:` line and exit status 2 instead of a traceback."""
-    run_tool(lambda: make_cli(args), PROG)
+def lightning_main(args: list[str]) -> None:
+    """The Lightning verbs, `simplenerf {fit,validate,test,predict} ...` (`args` starts with the verb)."""
+    make_cli(args)
+
+
+def main(args: list[str] | None = None) -> None:
+    """`simplenerf ...`: the dispatcher of every verb, `simplenerf.commands.main` (kept here for console scripts
+    installed when it lived here)."""
+    from simplenerf.commands import main as dispatch
+
+    dispatch(args)

@@ -1,10 +1,11 @@
 """`simplenerf <verb> ...` (also `python -m simplenerf <verb> ...`): every command of the project, one registry.
 
-`VERBS` maps a verb to the module that runs it and the line `simplenerf --help` shows. A verb's module has
-`main(argv)` (the arguments after the verb; the Lightning verbs get the verb too, it is LightningCLI's subcommand)
-and, for its own `--help`, a `CommandParser` with a description and an example. Registering a verb is one line here;
-the module is imported only when its verb runs, so `simplenerf --help` and the verbs that need no torch start at
-once. Every verb runs under `simplenerf.console.run_tool`: bad input ends with one `simplenerf: error:` line and exit
+`VERBS` maps a verb to the function that runs it ("module:function", or "module" for its `main`; called with the
+arguments after the verb, the Lightning verbs with the verb too, LightningCLI's subcommand) and the line `simplenerf
+--help` shows. A verb's module parses its arguments with a `CommandParser` whose description (the module docstring)
+has an example. Registering a verb is one line here, e.g. `"view": Verb("simplenerf.commands.view", "...")`; the
+module is imported only when its verb runs, so `simplenerf --help` and the verbs that need no torch start at once.
+Every verb runs under `simplenerf.console.run_tool`: bad input ends with one `simplenerf: error:` line and exit
 status 2, a signal with one line and 128 + its number.
 """
 
@@ -24,17 +25,17 @@ from simplenerf.console import PROG, run_tool
 
 @dataclass(frozen=True)
 class Verb:
-    module: str  # has main(argv: list[str]) -> None
+    target: str  # "module:function" or "module" (its main): the function taking the verb's arguments (list[str])
     summary: str  # one line of `simplenerf --help`
 
 
 LIGHTNING_VERBS = ("fit", "validate", "test", "predict")  # LightningCLI's subcommands (simplenerf.cli)
 
 VERBS: dict[str, Verb] = {
-    "fit": Verb("simplenerf.cli", "train a run from a config (resume it with --ckpt_path last)"),
-    "validate": Verb("simplenerf.cli", "score a run's validation view"),
-    "test": Verb("simplenerf.cli", "render and score every test frame into <run>/test (the paper's protocol)"),
-    "predict": Verb("simplenerf.cli", "render the test frames"),
+    "fit": Verb("simplenerf.cli:lightning_main", "train a run from a config (resume it with --ckpt_path last)"),
+    "validate": Verb("simplenerf.cli:lightning_main", "score a run's validation view"),
+    "test": Verb("simplenerf.cli:lightning_main", "render and score every test frame into <run>/test"),
+    "predict": Verb("simplenerf.cli:lightning_main", "render the test frames"),
     "sweep": Verb("simplenerf.commands.sweep", "scenes x views x models x seeds as jobs (SLURM, local), then a table"),
     "process-data": Verb("simplenerf.commands.process_data", "own photos -> a scene folder (SfM with pycolmap)"),
     "render-video": Verb("simplenerf.commands.render_video", "video of a trained run along the camera path"),
@@ -101,6 +102,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         sys.stderr.write(f"{PROG}: error: unknown command {name!r}{guess} (`{PROG} --help` lists the commands)\n")
         sys.exit(2)
     # Imported before run_tool quietens the libraries, so that their log handlers exist to be filtered.
-    module = importlib.import_module(VERBS[name].module)
+    module, _, function = VERBS[name].target.partition(":")
+    run = getattr(importlib.import_module(module), function or "main")
     args = argv if name in LIGHTNING_VERBS else argv[1:]
-    run_tool(lambda: module.main(args), PROG)
+    run_tool(lambda: run(args), PROG)

@@ -326,7 +326,8 @@ def _config_without(path: str, drop: tuple[str, ...]) -> str:
 
 
 def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[LightningCLI] = SimpleNeRFCLI):
-    """The CLI on `args` (None: sys.argv). With run=False it only builds model, data module and trainer (tools).
+    """The CLI on `args` (None: sys.argv). With run=False it only builds model, data module and trainer (for a verb
+    that reads a run).
 
     Every entry point comes through here, so this is also where SIMPLENERF_MALLOC=reuse takes effect (keep freed
     host memory for reuse: fewer page faults, more memory; see `simplenerf.memory`).

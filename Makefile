@@ -4,6 +4,7 @@
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
+SIMPLENERF := $(VENV)/bin/simplenerf
 SHARED ?= $(abspath ../shared)
 # LPIPS needs ImageNet AlexNet weights; the project's shared data has them (else: torch hub cache or a download).
 LPIPS_NPZ := $(SHARED)/data/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz
@@ -29,13 +30,13 @@ DEMO := --config configs/grid/demo.yaml
 DSNERF := --config configs/grid/demo_dsnerf.yaml
 
 demo: $(VENV)/.installed
-	$(PY) -m simplenerf fit $(DEMO) --overwrite true
-	$(PY) -m simplenerf test $(DEMO) --ckpt_path last
-	$(PY) -m simplenerf fit $(DSNERF) --overwrite true
-	$(PY) -m simplenerf test $(DSNERF) --ckpt_path last
-	$(PY) tools/render_video.py $(DEMO) --ckpt runs/grid_demo/checkpoints/last.ckpt --factor-down 2
+	$(SIMPLENERF) fit $(DEMO) --overwrite true
+	$(SIMPLENERF) test $(DEMO) --ckpt_path last
+	$(SIMPLENERF) fit $(DSNERF) --overwrite true
+	$(SIMPLENERF) test $(DSNERF) --ckpt_path last
+	$(SIMPLENERF) render-video $(DEMO) --ckpt runs/grid_demo/checkpoints/last.ckpt --factor-down 2
 	@echo "Test metrics on the synthetic 'objects' scene (3 views, same budget), renders in runs/grid_demo*/test:"
-	@$(PY) tools/compare_runs.py SimpleNeRF=runs/grid_demo DS-NeRF=runs/grid_demo_dsnerf
+	@$(SIMPLENERF) results SimpleNeRF=runs/grid_demo DS-NeRF=runs/grid_demo_dsnerf --scores both --depth
 	@echo "SimpleNeRF's spiral video ([RGB | depth]): runs/grid_demo/video_spiral.mp4"
 
 test: $(VENV)/.installed

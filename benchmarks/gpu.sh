@@ -44,10 +44,10 @@ data=(--data.init_args.scene_dir "$SCENE" --data.init_args.n_views 2 --data.init
 start=$SECONDS
 
 # SfM (pycolmap, on the CPU) once, untimed and cached, so that no timed run includes it.
-timeout 90 "$PYTHON" tools/precompute_sparse_depth.py --config configs/llff.yaml "${data[@]}" > "$OUT/sparse_depth.log" 2>&1 \
+timeout 90 "$PYTHON" -m simplenerf sparse-depth --config configs/llff.yaml "${data[@]}" > "$OUT/sparse_depth.log" 2>&1 \
   || { echo "gpu.sh: sparse depth (SfM) failed or timed out, see $OUT/sparse_depth.log" >&2; exit 1; }
 
-run() {  # run LIMIT NAME SCRIPT ARGS...: one benchmark process; its JSON line is appended to $jsonl
+run() {  # run LIMIT NAME PYTHON_ARGS...: one measuring process; its JSON line is appended to $jsonl
   local limit=$1 name=$2; shift 2
   if timeout "$limit" "$PYTHON" "$@" > "$OUT/$name.json" 2> "$OUT/$name.log"; then
     tail -n 1 "$OUT/$name.json" >> "$jsonl"
@@ -57,12 +57,12 @@ run() {  # run LIMIT NAME SCRIPT ARGS...: one benchmark process; its JSON line i
   fi
 }
 train=(--config configs/llff.yaml --steps "$STEPS" --warmup "$WARMUP")
-run 90 train_fp32 benchmarks/train_step.py "${train[@]}" --label fp32 --precision 32-true -- "${data[@]}"
-run 90 train_tf32 benchmarks/train_step.py "${train[@]}" --label tf32 --precision 32-true --tf32 -- "${data[@]}"
-run 90 train_bf16 benchmarks/train_step.py "${train[@]}" --label bf16 --precision bf16-mixed -- "${data[@]}"
+run 90 train_fp32 -m simplenerf benchmark "${train[@]}" --label fp32 --precision 32-true -- "${data[@]}"
+run 90 train_tf32 -m simplenerf benchmark "${train[@]}" --label tf32 --precision 32-true --tf32 -- "${data[@]}"
+run 90 train_bf16 -m simplenerf benchmark "${train[@]}" --label bf16 --precision bf16-mixed -- "${data[@]}"
 render=(--config configs/llff.yaml --frames "$FRAMES" --warmup 1)
-run 60 render_fp32 benchmarks/render.py "${render[@]}" --label fp32 --precision 32-true -- "${data[@]}"
-run 60 render_tf32 benchmarks/render.py "${render[@]}" --label tf32 --precision 32-true --tf32 -- "${data[@]}"
+run 60 render_fp32 -m benchmarks.render "${render[@]}" --label fp32 --precision 32-true -- "${data[@]}"
+run 60 render_tf32 -m benchmarks.render "${render[@]}" --label tf32 --precision 32-true --tf32 -- "${data[@]}"
 
 echo "total $((SECONDS - start)) s; JSON lines in $jsonl"
 [ -s "$jsonl" ] || exit 1

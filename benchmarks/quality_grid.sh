@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Grid SimpleNeRF vs grid DS-NeRF (configs/grid/*.yaml), 2 views, over scenes and seeds: for each run fit, test
 # (full-frame and masked PSNR / SSIM / LPIPS) and, on LLFF scenes, the depth error at held-out SfM points
-# (tools/heldout_depth_error.py); then one table of mean ± std over the seeds per scene and model.
+# (`simplenerf heldout-depth`); then a table per scene of mean ± std over the seeds per model (`simplenerf results`).
 #
 #   benchmarks/quality_grid.sh fern                          # the configs' budget (3000 steps), seed 0, both models
 #   SEEDS="0 1 2" STEPS=400 benchmarks/quality_grid.sh fern horns realestate
@@ -53,7 +53,7 @@ for scene in "$@"; do
   for seed in $SEEDS; do
     for variant in $VARIANTS; do
       run=$RUNS/${name}_seed${seed}_$variant
-      table+=("$name-$variant=$run")
+      table+=("$variant=$run")
       [ -n "${TABLE_ONLY:-}" ] && continue
       config=configs/grid/$prefix$variant.yaml
       args=(--data.init_args.scene_dir "$dir" --seed_everything "$seed" --data.init_args.seed "$seed" "${budget[@]}")
@@ -69,7 +69,7 @@ for scene in "$@"; do
       "$PYTHON" -m simplenerf test --config "$config" "${args[@]}" --trainer.logger false \
         --trainer.default_root_dir "$run" --ckpt_path "$run/checkpoints/last.ckpt"
       if [ $llff = 1 ]; then
-        "$PYTHON" tools/heldout_depth_error.py --config "$config" --ckpt "$run/checkpoints/last.ckpt" \
+        "$PYTHON" -m simplenerf heldout-depth --config "$config" --ckpt "$run/checkpoints/last.ckpt" \
           --out "$run/heldout_depth.json" -- "${args[@]}"
       fi
     done
@@ -78,4 +78,4 @@ done
 
 done_runs=()
 for entry in "${table[@]}"; do [ -f "${entry#*=}/test/summary.json" ] && done_runs+=("$entry"); done
-[ ${#done_runs[@]} -gt 0 ] && "$PYTHON" tools/compare_runs.py "${done_runs[@]}"
+[ ${#done_runs[@]} -gt 0 ] && "$PYTHON" -m simplenerf results --per-scene --scores full --depth "${done_runs[@]}"

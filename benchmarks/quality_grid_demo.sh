@@ -29,7 +29,7 @@ for variant in demo demo_dsnerf; do
   timed "fit $variant" "$PYTHON" -m simplenerf fit "${args[@]}"
   timed "test $variant" "$PYTHON" -m simplenerf test "${args[@]}" --ckpt_path last
 done
-timed "video" "$PYTHON" tools/render_video.py --config configs/grid/demo.yaml \
+timed "video" "$PYTHON" -m simplenerf render-video --config configs/grid/demo.yaml \
   --ckpt "$RUNS/grid_demo/checkpoints/last.ckpt" --factor-down 2 -- --trainer.default_root_dir "$RUNS/grid_demo"
 echo "total: $(( $(date +%s) - start )) s wall"
-"$PYTHON" tools/compare_runs.py SimpleNeRF="$RUNS/grid_demo" DS-NeRF="$RUNS/grid_demo_dsnerf"
+"$PYTHON" -m simplenerf results SimpleNeRF="$RUNS/grid_demo" DS-NeRF="$RUNS/grid_demo_dsnerf" --scores both --depth

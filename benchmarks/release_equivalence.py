@@ -7,7 +7,7 @@ It needs a copy of the release (its `src/`; its split CSVs under `data/` beside 
 Python with torch 2.13.0, this package and the release's few dependencies; it builds the release's on-disk layout of
 the scene itself (`benchmarks/equivalence/layouts.py`) under `--work-dir`. docs/equivalence.md has the setup:
 
-    python benchmarks/release_equivalence.py --release-src $REL/src --scene-dir ../shared/data/nerf_llff_data/fern \
+    python -m benchmarks.release_equivalence --release-src $REL/src --scene-dir ../shared/data/nerf_llff_data/fern \
         --realestate ../shared/data/realestate10k/000c3ab189999a83
 
 checks the data of fern with 2, 3 and 4 views (and the RealEstate-10K clip), one training step per view count and a
@@ -28,15 +28,14 @@ import sys
 import time
 from pathlib import Path
 
+import torch
+
+from benchmarks.equivalence import release as rel
+from benchmarks.equivalence import step as steps
+from benchmarks.equivalence.report import Report, compare, flag
+from benchmarks.equivalence.weights import copy_release_weights
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))  # `benchmarks.equivalence` from a checkout
-
-import torch  # noqa: E402
-
-from benchmarks.equivalence import release as rel  # noqa: E402
-from benchmarks.equivalence import step as steps  # noqa: E402
-from benchmarks.equivalence.report import Report, compare, flag  # noqa: E402
-from benchmarks.equivalence.weights import copy_release_weights  # noqa: E402
 
 
 def our_module(config: Path, scene_dir: Path, views: int, factor: int):

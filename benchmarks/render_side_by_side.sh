@@ -33,7 +33,7 @@ rows=()
 "$OFFICIAL/venv/bin/python" benchmarks/release_render.py --official_src "$OFFICIAL/simplenerf_official/src" \
   --run_root "$OFFICIAL/official_run" --train_num "$TRAIN_NUM" --frame 0 --frames 1 --threads "$THREADS" \
   --device "$DEVICE" "${rows[@]}" > "$OUT/release_render.json" 2> "$OUT/release_render.log"
-"$PYTHON" benchmarks/render.py --config configs/llff.yaml --frames 1 --precision "$PRECISION" "${rows[@]}" \
+"$PYTHON" -m benchmarks.render --config configs/llff.yaml --frames 1 --precision "$PRECISION" "${rows[@]}" \
   -- --data.init_args.scene_dir "$SCENE" --data.init_args.n_views 2 --data.init_args.factor 4 ${EXTRA:-} \
   > "$OUT/ours_render.json" 2> "$OUT/ours_render.log"
 "$PYTHON" - "$OUT/release_render.json" "$OUT/ours_render.json" <<'EOF'

@@ -19,7 +19,7 @@
 #   STEPS [4]  WARMUP [2]  THREADS [2] (OMP_NUM_THREADS of both)  OUT [runs/side_by_side/<variant>_<precision>_<time>]
 #   EXTRA      more CLI overrides for ours (e.g. "--model.chunk 4096")
 # Results: OUT/release_<V>_<rep>.json (driver.py --json_out; log beside it), OUT/ours_<V>_<P>_<rep>.json (one JSON line
-# of benchmarks/train_step.py; log beside it), OUT/table.md (benchmarks/summarize.py).
+# of `simplenerf benchmark`; log beside it), OUT/table.md (benchmarks/summarize.py).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VARIANT=${1:-B} PRECISIONS=${2:-32-true} REPS=${3:-3}
@@ -53,7 +53,7 @@ ours_args=(--config "$config" -- --data.init_args.scene_dir "$SCENE" --data.init
            --data.init_args.sparse_rays_per_batch "$rays" ${EXTRA:-})
 
 # SfM for our sparse depth runs once, untimed, before the sitting (it is cached), so no run's peak RSS includes it.
-"$PYTHON" tools/precompute_sparse_depth.py --config "$config" --data.init_args.scene_dir "$SCENE" \
+"$PYTHON" -m simplenerf sparse-depth --config "$config" --data.init_args.scene_dir "$SCENE" \
   --data.init_args.n_views 2 --data.init_args.factor 4 > "$OUT/sparse_depth.log" 2>&1
 
 release() {
@@ -64,7 +64,7 @@ release() {
   echo "release rep $1: $(grep -o '"s_per_iter_median": [0-9.]*' "$OUT/release_${VARIANT}_$1.log")"
 }
 ours() {  # rep precision
-  "$PYTHON" benchmarks/train_step.py --label "$VARIANT" --precision "$2" --steps "$STEPS" --warmup "$WARMUP" \
+  "$PYTHON" -m simplenerf benchmark --label "$VARIANT" --precision "$2" --steps "$STEPS" --warmup "$WARMUP" \
     "${ours_args[@]}" > "$OUT/ours_${VARIANT}_$2_$1.json" 2> "$OUT/ours_${VARIANT}_$2_$1.log"
   echo "ours $2 rep $1: $(grep -o '"s_per_it": [0-9.]*' "$OUT/ours_${VARIANT}_$2_$1.json")"
 }
@@ -79,4 +79,4 @@ for rep in $(seq 1 "$REPS"); do
     for ((i = ${#precisions[@]} - 1; i >= 0; i--)); do ours "$rep" "${precisions[i]}"; done; release "$rep"
   fi
 done
-"$PYTHON" benchmarks/summarize.py "$OUT"/release_*.json "$OUT"/ours_*.json | tee "$OUT/table.md"
+"$PYTHON" -m benchmarks.summarize "$OUT"/release_*.json "$OUT"/ours_*.json | tee "$OUT/table.md"

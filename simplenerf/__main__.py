@@ -1,4 +1,4 @@
-from simplenerf.cli import main
+from simplenerf.commands import main
 
 if __name__ == "__main__":
     main()

@@ -8,11 +8,14 @@ import importlib
 import inspect
 import logging
 import re
+import signal
 import sys
 import warnings
-from typing import Any, NoReturn
+from collections.abc import Callable
+from typing import Any
 
-from lightning.pytorch.cli import LightningArgumentParser
+from simplenerf import interrupts
+from simplenerf.errors import SimpleNeRFError
 
 PROG = "simplenerf"
 
@@ -127,19 +130,6 @@ def _class_suggestion(class_path: str, cause: str) -> str | None:
     return None
 
 
-class OneLineErrorParser(LightningArgumentParser):
-    """The CLI's parser: a bad option or config ends with the error line first (`simplenerf: error: ...`), then at
-    most one hint line, and exit status 2, instead of the full usage followed by nested causes."""
-
-    def error(self, message: str, ex: Exception | None = None) -> NoReturn:
-        if not self.exit_on_error:
-            super().error(message, ex)
-        parser = getattr(ex, "subcommand_parser", None) or self
-        line, hint = parser_error_line(message, parser)
-        sys.stderr.write(f"{PROG}: error: {line}\n{hint}\n")
-        sys.exit(2)
-
-
 class _Hold(logging.Filter):
     def __init__(self, handler: logging.Handler) -> None:
         super().__init__()
@@ -177,15 +167,45 @@ class _DropTips(logging.Filter):
 
 def quiet_libraries() -> None:
     """Keeps a normal run's output to what the user needs: no deprecation warnings of libraries (simplenerf's own
-    stay), no advertising tips from Lightning, no warning that a resumed run's checkpoint folder is not empty or that
-    the CLI was given its arguments."""
+    stay), no advertising tips from Lightning, no warning that a resumed run's checkpoint folder is not empty."""
     for category in (DeprecationWarning, PendingDeprecationWarning, FutureWarning):
         warnings.filterwarnings("ignore", category=category)
         warnings.filterwarnings("default", category=category, module=r"simplenerf(\.|$)")
     # Checked by the CLI before the run: the folder has checkpoints only when fit resumes from them.
     warnings.filterwarnings("ignore", message=r"Checkpoint directory .* exists and is not empty")
-    # make_cli passes the arguments itself when it makes a run's saved config readable (and tools always do).
-    warnings.filterwarnings("ignore", message=r"LightningCLI's args parameter is intended to run from within Python")
     for name in ("lightning.pytorch", "lightning.fabric"):
         for handler in logging.getLogger(name).handlers:
             handler.addFilter(_DropTips())
+
+
+# Errors of libraries that mean bad input, reported as one line like `SimpleNeRFError`: (module, class). Looked up only
+# where the module is loaded (one that is not cannot have raised), so a command that needs no torch starts at once.
+LIBRARY_INPUT_ERRORS = (
+    ("simplenerf.metrics.lpips", "LPIPSWeightsNotFound"),
+    ("lightning.fabric.utilities.exceptions", "MisconfigurationException"),
+)
+
+
+def _input_errors() -> tuple[type[BaseException], ...]:
+    loaded = [getattr(sys.modules[module], name) for module, name in LIBRARY_INPUT_ERRORS if module in sys.modules]
+    return (SimpleNeRFError, *loaded)
+
+
+def run_tool(main_function: Callable[[], None], name: str = PROG) -> None:
+    """Runs a command's main; bad input ends with one `<name>: error:` line and exit status 2 (a diverged training:
+    1); a SIGINT or SIGTERM with one line and 128 + the signal's number (`simplenerf.interrupts`; docs/running.md)."""
+    quiet_libraries()
+    interrupts.install()
+    try:
+        main_function()
+    except (KeyboardInterrupt, SystemExit, Exception) as e:
+        if isinstance(e, _input_errors()):
+            print(f"{name}: error: {e}", file=sys.stderr)
+            sys.exit(getattr(e, "exit_status", 2))
+        # After a signal, any error is its consequence: a library that was running native code (pycolmap's SfM) may
+        # turn the pending interrupt into its own exception. Without a signal, only KeyboardInterrupt is a stop.
+        if interrupts.received is None and not isinstance(e, KeyboardInterrupt):
+            raise
+        signum = interrupts.received or getattr(e, "signum", None) or signal.SIGINT
+        print(f"{name}: error: stopped by {interrupts.name(signum)} before it finished", file=sys.stderr)
+        sys.exit(interrupts.exit_status(signum))

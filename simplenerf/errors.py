@@ -1,4 +1,4 @@
-"""Errors the command line reports as one clear line (see `simplenerf.cli.main`), instead of a traceback."""
+"""Errors the command line reports as one clear line (`simplenerf.console.run_tool`), instead of a traceback."""
 
 
 class SimpleNeRFError(Exception):

@@ -1,6 +1,6 @@
 """What SIGINT (Ctrl-C) and SIGTERM (a scheduler's stop, SLURM's preemption) do to a command (docs/running.md).
 
-`install()` (the command line and the tools call it first) makes both signals raise `Interrupted` where the program
+`install()` (`simplenerf.console.run_tool` calls it first) makes both signals raise `Interrupted` where the program
 is, so cleanups run (`finally`, `except BaseException`: process-data's partial folder, the sparse-depth cache's
 temporary file) and the command line prints one line and exits with 128 + the signal's number: 130 for SIGINT, 143
 for SIGTERM, the shell's convention that Lightning's own `sys.exit` on Ctrl-C does not follow (it exits 1).

@@ -1,5 +1,6 @@
 """The LightningCLI of `python -m simplenerf {fit,validate,test,predict} --config ...`, with the project's defaults;
-`make_cli` builds it for the command line (`simplenerf.cli.main`), the tools and the sweep's jobs.
+`make_cli` builds it for the Lightning verbs (`lightning_main`, dispatched by `simplenerf.commands`), the verbs that read
+a run and the sweep's jobs.
 
 Defaults every run gets: W&B logging (offline without credentials), progress (a bar in a terminal, a plain line
 every N steps in a log file: `--progress.*`), rays/s, learning-rate logging, checkpoints under
@@ -20,7 +21,7 @@ import os
 import re
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import yaml
 from jsonargparse import lazy_instance
@@ -48,7 +49,7 @@ from simplenerf.checks import (
     read_checkpoint,
     resolve_checkpoint,
 )
-from simplenerf.console import PROG, HeldLogs, OneLineErrorParser
+from simplenerf.console import PROG, HeldLogs, parser_error_line
 from simplenerf.data.scene import SceneDataModule
 from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged
 from simplenerf.evaluation.evaluator import Evaluator
@@ -76,6 +77,19 @@ DESCRIPTION = (
 )
 
 
+class OneLineErrorParser(LightningArgumentParser):
+    """The CLI's parser: a bad option or config ends with the error line first (`simplenerf: error: ...`), then at
+    most one hint line, and exit status 2, instead of the full usage followed by nested causes."""
+
+    def error(self, message: str, ex: Exception | None = None) -> NoReturn:
+        if not self.exit_on_error:
+            super().error(message, ex)
+        parser = getattr(ex, "subcommand_parser", None) or self
+        line, hint = parser_error_line(message, parser)
+        sys.stderr.write(f"{PROG}: error: {line}\n{hint}\n")
+        sys.exit(2)
+
+
 class RunConfig(SaveConfigCallback):
     """`fit` saves its config as `<run>/config.yaml`, the record of how the run was trained. Other subcommands leave
     that file alone and hand their config to the Evaluator, which keeps it beside their results
@@ -101,6 +115,11 @@ class SimpleNeRFCLI(LightningCLI):
             self._held_logs.release(emit=False)
             raise
         self._held_logs.release()
+
+    def parse_arguments(self, parser: LightningArgumentParser, args: Any) -> None:
+        """As Lightning's, without its warning against giving `args` while sys.argv holds arguments: `make_cli`
+        always passes the arguments itself (those of sys.argv, or a verb's or a test's)."""
+        self.config = parser.parse_args(args)
 
     def add_arguments_to_parser(self, parser) -> None:
         parser.add_lightning_class_args(Checkpointing, "checkpoint")
@@ -311,7 +330,8 @@ def _config_without(path: str, drop: tuple[str, ...]) -> str:
 
 
 def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[LightningCLI] = SimpleNeRFCLI):
-    """The CLI on `args` (None: sys.argv). With run=False it only builds model, data module and trainer (tools).
+    """The CLI on `args` (None: sys.argv). With run=False it only builds model, data module and trainer (for a verb
+    that reads a run).
 
     Every entry point comes through here, so this is also where SIMPLENERF_MALLOC=reuse takes effect (keep freed
     host memory for reuse: fewer page faults, more memory; see `simplenerf.memory`).
@@ -325,9 +345,6 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
         drop = SUBCOMMAND_KEYS
     else:
         drop = {"fit": (), "test": ("overwrite",)}.get(given[0] if given else "", ("overwrite", "allow_changes"))
-    if drop:  # (otherwise args stay as given: Lightning warns when args and sys.argv both hold arguments)
-        readable = without_subcommand_keys(given, drop)
-        args = readable if readable != given else args
     return cli_class(
         SimpleNeRF,
         LightningDataModule,
@@ -339,15 +356,16 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
         parser_kwargs={"prog": PROG, "description": DESCRIPTION},
         seed_everything_default=0,
         run=run,
-        args=args,
+        args=without_subcommand_keys(given, drop) if drop else given,
     )
 
 
 def load_for_tool(
     configs: list[str], overrides: list[str], stage: str = "test", ckpt: str | None = None, device: str = "cpu"
 ) -> LightningCLI:
-    """What the tools in tools/ start from: the CLI of `configs` + `overrides` without a logger, its data module set
-    up for `stage` and, with `ckpt`, the model's trained weights loaded (eval mode, on `device`)."""
+    """What the verbs that read a run start from (`simplenerf render-video`, ...): the CLI of `configs` + `overrides`
+    without a logger, its data module set up for `stage` and, with `ckpt`, the model's trained weights loaded (eval
+    mode, on `device`)."""
     if ckpt is not None and not Path(ckpt).is_file():
         raise DataError(f"checkpoint {ckpt} does not exist")
     cli = make_cli([*(a for c in configs for a in ("--config", c)), *overrides, "--trainer.logger", "false"], run=False)
@@ -358,3 +376,8 @@ def load_for_tool(
         cli.model.load_state_dict(checkpoint["state_dict"])
         cli.model.to(device).eval()
     return cli
+
+
+def lightning_main(args: list[str]) -> None:
+    """The Lightning verbs, `simplenerf {fit,validate,test,predict} ...` (`args` starts with the verb)."""
+    make_cli(args)

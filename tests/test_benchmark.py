@@ -1,5 +1,5 @@
-"""Speed measurement (simplenerf.benchmark): the counting formulas by hand, frame cropping, the side-by-side table, and
-one short run of each benchmark through the real CLI."""
+"""Speed measurement (simplenerf.speed, `simplenerf benchmark`, benchmarks/): the counting formulas by hand, frame
+cropping, the side-by-side table, and one short run of each measurement through the real CLI."""
 
 from __future__ import annotations
 
@@ -10,16 +10,14 @@ import pytest
 import torch
 from torch import nn
 
-from simplenerf.benchmark import (
-    crop_rows,
-    field_evaluations_per_ray,
-    linear_macs,
-    matmul_flop_per_ray,
-    profile_main,
-    render_main,
-    side_by_side_table,
-    train_step_main,
-)
+from benchmarks.profile_step import main as profile_main
+from benchmarks.profile_step import matmul_time
+from benchmarks.render import crop_rows
+from benchmarks.render import main as render_main
+from benchmarks.summarize import side_by_side_table
+from simplenerf.commands.benchmark import main as benchmark_main
+from simplenerf.commands.benchmark import training_args
+from simplenerf.speed import field_evaluations_per_ray, linear_macs, matmul_flop_per_ray
 from tests.test_cli import run_args
 
 
@@ -109,10 +107,11 @@ def _tiny(tmp_path) -> list[str]:
 
 
 def test_train_step_and_render_run_through_the_cli(tmp_path, capsys):
-    record = train_step_main(["--steps", "2", "--warmup", "1", "--label", "tiny", *_tiny(tmp_path)])
+    record = benchmark_main(["--steps", "2", "--warmup", "1", "--label", "tiny", "--rays", "48", *_tiny(tmp_path)])
     line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert line == json.loads(json.dumps(record))
     assert line["label"] == "tiny" and len(line["s_per_it_all"]) == 2 and len(line["warmup_s"]) == 1
+    assert line["rays_random"] == 48  # --rays, after the config's overrides (64)
     assert line["rays_per_it"] == line["rays_random"] + line["rays_sparse"] > 0
     assert line["field_evaluations_per_it"] == line["field_evaluations_per_ray"] * line["rays_per_it"]
     assert line["rays_per_s"] == pytest.approx(line["rays_per_it"] / line["s_per_it"])
@@ -127,9 +126,7 @@ def test_train_step_and_render_run_through_the_cli(tmp_path, capsys):
     record = profile_main(["--warmup", "1", *_tiny(tmp_path)])
     # the warm-up iteration's matrix products, counted: at least the forward of the random rays' fields (colour
     # included), at most forward + backward of every ray with colour (the sparse rays skip their colour branches)
-    from simplenerf.benchmark.scripts import _training_args
-
-    model = _training_args(["--warmup", "1", *_tiny(tmp_path)], "", {})[2].model
+    model = training_args(["--warmup", "1", *_tiny(tmp_path)], "", {})[2].model
     flop = record["matmul_gflop"] * 1e9
     assert matmul_flop_per_ray(model, training=False) * 64 <= flop < matmul_flop_per_ray(model) * (64 + 32)
     assert record["matmul_s"] > 0 and record["other_ops_s"] > 0
@@ -138,8 +135,6 @@ def test_train_step_and_render_run_through_the_cli(tmp_path, capsys):
 
 
 def test_matmul_time_separates_the_matrix_products():
-    from simplenerf.benchmark.profile import matmul_time
-
     events = [("aten::mm", 2.0), ("aten::addmm", 1.0), ("aten::relu", 0.5), ("aten::copy_", 0.25)]
     assert matmul_time(events, 450 * 10**9) == {"matmul_s": 3.0, "matmul_gflop": 450.0, "matmul_gflop_per_s": 150.0,
                                                 "other_ops_s": 0.75}

@@ -14,6 +14,7 @@ import pytest
 import torch
 import yaml
 
+from simplenerf.commands import LIGHTNING_VERBS, VERBS, main
 from simplenerf.lightning_cli import load_for_tool
 from tests.conftest import REPO, shared_dir
 
@@ -60,7 +61,7 @@ def run_args(tmp: Path, shared: Path | None = None) -> list[str]:
     return [
         "--config", "configs/demo.yaml", "--config", str(tiny_model(tmp)), *SMALL,
         "--data.init_args.root", str(shared / "data"), "--data.init_args.sparse_depth_cache", str(shared / "cache"),
-        "--trainer.default_root_dir", str(tmp / "run"), "--trainer.logger.init_args.save_dir", str(tmp / "run"),
+        "--trainer.default_root_dir", str(tmp / "run"),  # the W&B logger writes into the run folder too
     ]
 
 
@@ -123,10 +124,52 @@ def test_a_normal_run_prints_no_library_noise(trained):
         assert f"W&B: offline run in {trained / 'run' / 'wandb'}" in text
 
 
-def test_help_describes_simplenerf():
+def test_help_describes_simplenerf_and_lists_every_verb_once():
     out = run("--help").stdout
-    assert out.startswith("usage: simplenerf ")
+    assert out.startswith("usage: simplenerf <command> [options]")
     assert "SimpleNeRF (SIGGRAPH Asia 2023): Neural Radiance Fields from 2 to 4 photos" in out
+    listed = out[out.index("commands:\n") + len("commands:\n"):].splitlines()
+    assert [line.split()[0] for line in listed] == list(VERBS)
+    assert all(line.startswith("  ") and len(line.split(maxsplit=1)) == 2 for line in listed)  # a verb and its line
+    assert run().stdout == out  # no verb: the same overview
+
+
+@pytest.mark.parametrize("verb", list(VERBS))
+def test_every_verb_answers_help(verb, capsys):
+    with pytest.raises(SystemExit) as done:
+        main([verb, "--help"])
+        raise SystemExit(0)  # a verb that prints its help and returns
+    out = capsys.readouterr().out
+    assert done.value.code in (0, None) and out.startswith("usage: simplenerf")
+    assert verb in out.splitlines()[0]
+    if verb not in LIGHTNING_VERBS:  # the module's docstring: a description and an example of the verb
+        assert f"simplenerf {verb} " in out.split("\n\n", 1)[1]
+
+
+def test_an_unknown_verb_is_one_error_line():
+    proc = run("fitt", "--config", "configs/demo.yaml", check=False)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr == ("simplenerf: error: unknown command 'fitt'; did you mean fit? (`simplenerf --help` lists "
+                           "the commands)\n")
+
+
+def test_a_verbs_bad_option_is_one_error_line_and_a_hint():
+    proc = run("render-video", "--config", "configs/demo.yaml", check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.splitlines() == ["simplenerf: error: the following arguments are required: --ckpt",
+                                        "hint: `simplenerf render-video --help` lists every option"]
+
+
+def test_tools_are_one_call_of_their_verb():
+    """tools/<verb>.py (the layout's thin scripts): each runs `simplenerf <verb>` with its arguments, nothing else."""
+    scripts = sorted((REPO / "tools").glob("*.py"))
+    assert scripts
+    for script in scripts:
+        verb = script.stem.replace("_", "-")
+        assert verb in VERBS, script
+        code = [line for line in script.read_text().splitlines()[1:] if line.strip()]
+        assert code == ["import sys", "from simplenerf.commands import main", 'if __name__ == "__main__":',
+                        f'    main(["{verb}", *sys.argv[1:]])'], script
 
 
 def test_final_video_is_h264_and_logged_to_wandb(trained):
@@ -189,7 +232,7 @@ def test_test_keeps_earlier_results_and_the_run_config(trained):
 
 def test_a_runs_saved_config_is_a_config_for_test_and_the_tools(trained, tmp_path):
     """<run>/config.yaml holds the fit's own arguments too (overwrite, ckpt_path: last, weights_only); test and
-    load_for_tool (what tools/ start from) take the file as it is."""
+    load_for_tool (what the verbs that read a run start from) take the file as it is."""
     run_dir = trained / "run"
     saved = yaml.safe_load((run_dir / "config.yaml").read_text())
     assert {"overwrite", "ckpt_path", "weights_only"} <= saved.keys() and saved["ckpt_path"] == "last"
@@ -208,21 +251,20 @@ def test_a_runs_saved_config_is_a_config_for_test_and_the_tools(trained, tmp_pat
 
 
 def test_run_history_reads_what_the_fit_and_its_resume_logged(trained, tmp_path):
-    """tools/run_history.py reads the W&B files of both runs of the resumed fit (validations after steps 2, 4, 6,
+    """`simplenerf run-history` reads the W&B files of both runs of the resumed fit (validations after steps 2, 4, 6,
     logged at global steps 1, 3, 5), with no network. The two W&B runs the fits printed are copied to a folder of
     their own (other tests validate the same run folder, which adds W&B runs)."""
     for name in ("fit1", "fit2"):
         [folder] = re.findall(r"W&B: offline run in (\S+)", (trained / f"{name}.stdout").read_text())
         shutil.copytree(folder, tmp_path / "wandb" / Path(folder).name)
-    proc = subprocess.run([sys.executable, "tools/run_history.py", str(tmp_path), "--keys", "val/psnr"],
-                          cwd=REPO, capture_output=True, text=True, check=True)
+    proc = run("run-history", str(tmp_path), "--keys", "val/psnr")
     header, *rows = [line.split(",") for line in proc.stdout.splitlines()]
     assert header == ["step", "val/psnr"] and [int(r[0]) for r in rows] == [1, 3, 5]
     assert all(0 < float(r[1]) < 100 for r in rows)
 
 
 def test_history_table_merges_a_steps_scalars():
-    from tools.run_history import history_table
+    from simplenerf.commands.run_history import history_table
 
     rows = [{"trainer/global_step": 9, "train/loss": 0.5, "epoch": 0}, {"trainer/global_step": 9, "train/psnr": 20.0},
             {"trainer/global_step": 19, "train/loss": 0.25, "train/flag": True, "train/image": {"_type": "png"}},

@@ -1,56 +1,8 @@
-"""Video of a trained model along the scene's camera path (SPEC 7): [RGB | depth] side by side, e.g.
+"""Runs `simplenerf render-video` (simplenerf/commands/render_video.py; `--help`: its options, an example)."""
 
-    python tools/render_video.py --config configs/llff.yaml --ckpt runs/llff/checkpoints/last.ckpt \
-        -- --data.init_args.scene_dir data/nerf_llff_data/fern
-
-Paths: `spiral` (LLFF: 120 frames, 2 rotations around the train views) or `recorded` (RealEstate-10K: the clip's
-own cameras). Default: the scene's `camera_path` (LLFF: `spiral`, RealEstate-10K: `recorded`). Everything
-after `--` is passed to the CLI as overrides. Writes <trainer.default_root_dir>/video_<path>.mp4 unless --out.
-The depth colour range used is printed; give it to another model's video with --depth-range to compare the two.
-"""
-
-from __future__ import annotations
-
-import argparse
 import sys
-from pathlib import Path
 
-import torch
-
-from simplenerf.cli import run_tool, split_overrides
-from simplenerf.lightning_cli import load_for_tool
-from simplenerf.viz.video import render_scene_video
-
-
-def parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", required=True, action="append", help="config file(s) of the run, in order")
-    parser.add_argument("--ckpt", required=True, help="checkpoint of the trained model")
-    parser.add_argument("--path", choices=["spiral", "recorded"], help="camera path (default: see above)")
-    parser.add_argument("--frames", type=int, default=120, help="frames of the spiral")
-    parser.add_argument("--rotations", type=float, default=2, help="turns of the spiral")
-    parser.add_argument("--factor-down", type=int, default=1, help="render at 1/N of the data's resolution")
-    parser.add_argument("--fps", type=float, default=30, help="frames per second")
-    parser.add_argument("--depth-range", type=float, nargs=2, metavar=("CLOSEST", "FARTHEST"),
-                        help="depths (scene units) at the ends of the colour map; default: from the first frames")
-    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu", help="torch device")
-    parser.add_argument("--out", help="the .mp4 to write")
-    return parser.parse_args(argv)
-
-
-def main() -> None:
-    own, overrides = split_overrides(sys.argv[1:])
-    args = parse_args(own)
-    cli = load_for_tool(args.config, overrides, ckpt=args.ckpt, device=args.device)
-    kind = args.path or cli.datamodule.scene.camera_path
-    out = args.out or Path(cli.trainer.default_root_dir) / f"video_{kind}.mp4"
-    written, n, width, height, kind, (closest, farthest) = render_scene_video(
-        cli.model, cli.datamodule, out, kind, args.frames, args.rotations, args.factor_down, args.fps,
-        tuple(args.depth_range) if args.depth_range else None,
-    )
-    print(f"video: {written} ({n} frames of {2 * width}x{height}, {kind}; "
-          f"--depth-range {closest:.4g} {farthest:.4g})")
-
+from simplenerf.commands import main
 
 if __name__ == "__main__":
-    run_tool(main, "render_video")
+    main(["render-video", *sys.argv[1:]])

@@ -109,7 +109,7 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
             sparse_depth_weighting: weight each point by DS-NeRF's 2 exp(-(err / mean err)^2) of its reprojection
                 error (off in DS-NeRF's and SimpleNeRF's releases).
             reference_depth_dir: folder of reference depth `<frame name>.npy` (camera z-depth in file units, e.g. a
-                dense NeRF's export by tools/export_reference_depth.py) for depth metrics and visibility masks;
+                dense NeRF's export by `simplenerf export-depth`) for depth metrics and visibility masks;
                 null: the format's own (the synthetic scene's exact depth), else no depth metrics.
         """
         super().__init__()

@@ -45,7 +45,7 @@ def export_visibility_masks(scene: Scene, out_dir: str | Path, min_views: int = 
         raise DataError(
             f"scene {scene.source} has no reference depth, which "
             "visibility masks need (e.g. <scene>/depths_<factor>/<frame>.npy): train a dense NeRF "
-            "(configs/dense/*.yaml), export its depth with tools/export_reference_depth.py and pass the folder as "
+            "(configs/dense/*.yaml), export its depth with `simplenerf export-depth` and pass the folder as "
             "--data.init_args.reference_depth_dir"
         )
     out_dir = Path(out_dir)

@@ -8,5 +8,5 @@ results table, on a SLURM cluster or on this machine (`python -m simplenerf swee
     executors.py  submitit: SLURM job arrays with afterok dependencies, local processes, or in-process (debug)
     results.py    the results table beside the paper's rows (simplenerf.reporting.tables)
     status.py     `sweep status SWEEP_DIR`
-    command.py    the command line
+    (the command line: simplenerf/commands/sweep.py)
 """

@@ -1,7 +1,7 @@
 """What one job of a sweep does (`run_unit`), in the process the executor gives it: submitit's job process on SLURM
 or on this machine, or the sweep's own process (debug).
 
-The stages run the package's own entry points in-process (`simplenerf.lightning_cli.make_cli` for fit / test, the tools'
+The stages run the package's own entry points in-process (`simplenerf.lightning_cli.make_cli` for fit / test, the verbs'
 functions for depth export and masks), so on SLURM the fit is the job's process itself and receives SLURM's signal:
 Lightning's `SLURMEnvironment(auto_requeue=True)` saves `hpc_ckpt_N.ckpt` on SIGUSR1 (sbatch `--signal=USR1@90`)
 and requeues the job with `scontrol requeue`; the requeued job runs this again, in the same run folder and with the

@@ -1,5 +1,5 @@
 """The sweep's results table: its tested runs in the layout of the paper's Tables 1-3 (`simplenerf.reporting.tables`,
-the logic of tools/results_table.py), beside the published rows of the table the sweep file names per scene format,
+the table of `simplenerf results`), beside the published rows of the table the sweep file names per scene format,
 written to `<sweep>/results.md` and `<sweep>/results.csv` (long format, one line per value).
 """
 

@@ -45,7 +45,7 @@ class SceneEntry:
     args: list[str] = field(default_factory=list)
     """CLI overrides for this scene in every job, e.g. ["--data.init_args.factor", "1"]."""
     reference_depth: str | None = None
-    """A folder of reference depth (<frame>.npy, tools/export_reference_depth.py's output) instead of a dense NeRF;
+    """A folder of reference depth (<frame>.npy, `simplenerf export-depth`'s output) instead of a dense NeRF;
     `scene`: the scene's own depth (depths_<factor>/); null: the sweep trains the dense NeRF."""
 
 

@@ -1,4 +1,4 @@
-"""The paper's published scores: the printed tables as data (reference rows for `tools/results_table.py --paper`), and a
+"""The paper's published scores: the printed tables as data (reference rows for `simplenerf results --paper`), and a
 reader of the authors' per-frame scores (`read_release_folder`), which the printed means are the frame means of.
 
 Numbers are strings exactly as printed (so "0.14" keeps its two decimals and a test can compare them with the .tex);

@@ -17,7 +17,14 @@ with per-frame CSVs; `paper_scores.read_release_folder`), e.g. ../shared/referen
 comes from `paper_scores.RELEASE_VIEWS` or a `@N` suffix (`ours/test2011@2`). A release folder may be given without
 NAME: its row is then `RELEASE_MODEL`.
 
-A "key" is a field of summary.json (`masked_lpips`, `lpips`, ...). This module imports no torch or Lightning.
+Repeats: several runs of one model on the same scene and view count (e.g. seeds) are its repeats; the r-th run of each
+scene (in the order given, sorted for a glob) make repeat r, and a row's value is the mean over its repeats of their
+frame means (with the same scenes in every repeat, the mean over all their frames), with the sample standard
+deviation over the repeats beside it.
+
+A "key" is a field of summary.json (`masked_lpips`, `lpips`, ...), or of `<run>/heldout_depth.json` (the depth error
+at held-out SfM points, `simplenerf heldout-depth`: one value per run, averaged over runs). This module imports no
+torch or Lightning.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ import glob
 import json
 import math
 import re
+import statistics
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +46,9 @@ METRICS = ("lpips", "ssim", "psnr")
 DEPTH_METRICS = ("depth_mae", "depth_srocc")
 # Every score of the shared summary.json format, full-frame then masked.
 KEYS = (*METRICS, *DEPTH_METRICS, *(f"masked_{m}" for m in (*METRICS, *DEPTH_METRICS)))
+# The held-out SfM depth error of a run (`<run>/heldout_depth.json`: its fields rel_error_mean, rel_error_median).
+HELDOUT_KEYS = ("heldout_rel_error_mean", "heldout_rel_error_median")
+ALL_KEYS = (*KEYS, *HELDOUT_KEYS)
 RELEASE_MODEL = "SimpleNeRF (release)"
 """The row name of an authors' release folder given without NAME=."""
 
@@ -49,7 +60,7 @@ class Record:
     model: str
     scene: str
     n_views: int
-    frames: dict[str, tuple[float, ...]]  # every key of KEYS -> the scores of the frames that have it (maybe none)
+    frames: dict[str, tuple[float, ...]]  # every key of ALL_KEYS -> the scores of the frames that have it (maybe none)
     path: Path  # the file the scores were read from
 
     @property
@@ -61,8 +72,9 @@ class Record:
 @dataclass(frozen=True)
 class Row:
     """One table row. `values[(n_views, key)]` is the mean over the frames of the scenes `scenes[n_views]` (absent:
-    no value), `frames[(n_views, key)]` how many frames it averages; `printed` gives a value as published (the paper's
-    digits), `paper` marks a published reference row."""
+    no value), `frames[(n_views, key)]` how many frames it averages; `spread[(n_views, key)]` the sample standard
+    deviation over the model's repeats (absent with one run per scene), `runs[n_views]` how many repeats; `printed`
+    gives a value as published (the paper's digits), `paper` marks a published reference row."""
 
     model: str
     values: dict[tuple[int, str], float]
@@ -70,10 +82,17 @@ class Row:
     printed: dict[tuple[int, str], str] = field(default_factory=dict)
     paper: bool = False
     frames: dict[tuple[int, str], int] = field(default_factory=dict)
+    spread: dict[tuple[int, str], float] = field(default_factory=dict)
+    runs: dict[int, int] = field(default_factory=dict)
 
     @property
     def label(self) -> str:
-        return f"{self.model} (paper)" if self.paper else self.model
+        if self.paper:
+            return f"{self.model} (paper)"
+        repeats = sorted({k for k in self.runs.values() if k > 1})
+        if not repeats:
+            return self.model
+        return f"{self.model} ({repeats[0] if len(repeats) == 1 else f'{repeats[0]}-{repeats[-1]}'} runs)"
 
 
 def _unique(items: Iterable[str]) -> list[str]:
@@ -156,7 +175,19 @@ def load_record(model: str, path: Path) -> Record:
     if not metrics.is_file():
         raise DataError(f"{metrics} not found: the table averages the frames of metrics.csv, which `python -m "
                         "simplenerf test` writes beside summary.json; re-run the test")
-    return Record(model, scene, n_views, _read_frames(metrics), metrics)
+    return Record(model, scene, n_views, {**_read_frames(metrics), **_read_heldout(file.parent.parent)}, metrics)
+
+
+def _read_heldout(run: Path) -> dict[str, tuple[float, ...]]:
+    """The held-out SfM depth error of `<run>/heldout_depth.json` as one value per key (none without that file)."""
+    file = run / "heldout_depth.json"
+    if not file.is_file():
+        return {key: () for key in HELDOUT_KEYS}
+    try:
+        result = json.loads(file.read_text())
+        return {key: (float(result[key.removeprefix("heldout_")]),) for key in HELDOUT_KEYS}
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
+        raise DataError(f"{file}: expected the JSON of `simplenerf heldout-depth --out` ({e})") from None
 
 
 def load_release(model: str, path: Path) -> list[Record]:
@@ -170,7 +201,7 @@ def load_release(model: str, path: Path) -> list[Record]:
     scores = [s for s in read_release_folder(folder) if s.key is not None]
     records = []
     for scene in _unique(scene for s in scores for scene in s.scenes):
-        frames = {key: () for key in KEYS}
+        frames = {key: () for key in ALL_KEYS}
         for s in scores:
             pairs = zip(s.scenes, s.values, strict=True)
             frames[s.key] = tuple(v for at, v in pairs if at == scene and math.isfinite(v))
@@ -179,42 +210,55 @@ def load_release(model: str, path: Path) -> list[Record]:
 
 
 def load_records(runs: Sequence[tuple[str, Path]]) -> list[Record]:
-    """The records of (model name, run or release folder) pairs, in order. Two runs of one model on the same scene and
-    view count are an error (which one would the table show?)."""
+    """The records of (model name, run or release folder) pairs, in order. Several runs of one model on the same scene
+    and view count are its repeats (module docstring)."""
     records: list[Record] = []
-    seen: dict[tuple[str, str, int], Path] = {}
     for model, path in runs:
         release = is_release_folder(_release_path(str(path))[0])
-        found = load_release(model, path) if release else [load_record(model, path)]
-        for record in found:
-            key = (record.model, record.scene, record.n_views)
-            if key in seen:
-                raise DataError(f"{seen[key]} and {record.path} are both {model} on {record.scene} with "
-                                f"{record.n_views} views: give one of them another NAME or leave it out")
-            seen[key] = record.path
-            records.append(record)
+        records += load_release(model, path) if release else [load_record(model, path)]
     return records
+
+
+def repeats(records: Sequence[Record]) -> list[list[Record]]:
+    """The records of one model and view count as repeats: repeat r holds the r-th record of each scene. Every scene
+    must have the same number of runs."""
+    by_scene: dict[str, list[Record]] = {}
+    for record in records:
+        by_scene.setdefault(record.scene, []).append(record)
+    if len({len(runs) for runs in by_scene.values()}) > 1:
+        first = records[0]
+        counts = ", ".join(f"{len(runs)} of {scene}" for scene, runs in by_scene.items())
+        raise DataError(f"{first.model} with {first.n_views} views has {counts}: give every scene the same number of "
+                        "runs (e.g. one per seed), or give some of them another NAME")
+    return [list(repeat) for repeat in zip(*by_scene.values(), strict=True)]
 
 
 def mean_rows(records: Sequence[Record]) -> list[Row]:
     """One row per model (in order of first appearance): per view count, each score averaged over ALL the frames of
-    the model's scenes with that view count (the paper's averaging). A score some of those scenes have no frame of has
-    no mean (see `coverage_warnings`)."""
+    the model's scenes with that view count (the paper's averaging); with repeats, the mean and standard deviation of
+    the repeats' such means. A score some of those scenes have no frame of has no mean (see `coverage_warnings`)."""
     rows = []
     for model in _unique(r.model for r in records):
         own = [r for r in records if r.model == model]
         values: dict[tuple[int, str], float] = {}
+        spread: dict[tuple[int, str], float] = {}
         counts: dict[tuple[int, str], int] = {}
         scenes: dict[int, tuple[str, ...]] = {}
+        runs: dict[int, int] = {}
         for n in sorted({r.n_views for r in own}):
             group = [r for r in own if r.n_views == n]
-            scenes[n] = tuple(r.scene for r in group)
-            for key in KEYS:
+            scenes[n] = tuple(_unique(r.scene for r in group))
+            repeated = repeats(group)
+            runs[n] = len(repeated)
+            for key in ALL_KEYS:
                 if all(r.frames[key] for r in group):
-                    pooled = [v for r in group for v in r.frames[key]]
-                    values[(n, key)] = math.fsum(pooled) / len(pooled)
-                    counts[(n, key)] = len(pooled)
-        rows.append(Row(model, values, scenes, frames=counts))
+                    means = [math.fsum(v for r in run for v in r.frames[key]) / sum(len(r.frames[key]) for r in run)
+                             for run in repeated]
+                    values[(n, key)] = math.fsum(means) / len(means)
+                    counts[(n, key)] = sum(len(r.frames[key]) for r in group)
+                    if len(means) > 1:
+                        spread[(n, key)] = statistics.stdev(means)
+        rows.append(Row(model, values, scenes, frames=counts, spread=spread, runs=runs))
     return rows
 
 

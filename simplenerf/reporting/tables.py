@@ -3,7 +3,8 @@
 
 The rows come from `records` (tested runs and authors' release folders, averaged over ALL test frames of a model's
 scenes as the paper averages, or per scene) and from `paper_scores` (the published rows); here they are laid out as
-`markdown_table` / `csv_rows`. `tools/results_table.py` is the command line (`main` here).
+`markdown_table` / `csv_rows`. `simplenerf results` is the command line (simplenerf/commands/results.py). A model with
+several runs of the same scenes (e.g. seeds) shows mean ± standard deviation over them (`records.mean_rows`).
 
 Names: a "key" is a field of summary.json (`masked_lpips`, `lpips`, ...); a "metric" is its base name (`lpips`); the
 scores choice maps metrics to keys: "masked" -> `masked_<metric>`, "full" -> `<metric>`, "both" -> both, shown as
@@ -13,34 +14,28 @@ Masked is the default because the paper's main tables are masked scores (pixels 
 Sec. 5.1 and the supplement; SPEC 7-8: the masked 2-view LLFF means PSNR 19.57 / SSIM 0.650 / LPIPS 0.269 are exactly
 Table 1's SimpleNeRF row), so measured rows compare with the published ones only in this mode.
 
-This module imports no torch or Lightning, so the table tool starts at once.
+This module imports no torch or Lightning, so the table command starts at once.
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
-import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
-from simplenerf.errors import DataError
 from simplenerf.reporting.paper_scores import TABLES
 from simplenerf.reporting.records import (
     DEPTH_METRICS,
+    HELDOUT_KEYS,
     METRICS,
     Record,
     Row,
-    coverage_warnings,
-    expand_runs,
-    load_records,
-    mean_rows,
-    per_scene_rows,
 )
 
-HEADERS = {"lpips": "LPIPS ↓", "ssim": "SSIM ↑", "psnr": "PSNR ↑", "depth_mae": "MAE ↓", "depth_srocc": "SROCC ↑"}
+HEADERS = {"lpips": "LPIPS ↓", "ssim": "SSIM ↑", "psnr": "PSNR ↑", "depth_mae": "MAE ↓", "depth_srocc": "SROCC ↑",
+           "heldout_rel_error_mean": "held-out err. ↓", "heldout_rel_error_median": "held-out err. median ↓"}
 SCORES = ("masked", "full", "both")
-CSV_FIELDS = ("table", "model", "source", "n_views", "metric", "value", "scenes", "frames")
+CSV_FIELDS = ("table", "model", "source", "n_views", "metric", "value", "scenes", "frames", "std", "runs")
 MISSING = "-"
 
 
@@ -48,15 +43,18 @@ def _unique(items: Iterable[str]) -> list[str]:
     return list(dict.fromkeys(items))
 
 
-def table_metrics(depth: bool) -> tuple[str, ...]:
-    """The metrics of one view-count group, in the paper's order."""
-    return (*METRICS, *DEPTH_METRICS) if depth else METRICS
+def table_metrics(depth: bool, heldout: bool = False) -> tuple[str, ...]:
+    """The metrics of one view-count group, in the paper's order; then the reference-depth ones (`depth`) and the
+    held-out SfM depth error (`heldout`)."""
+    return (*METRICS, *(DEPTH_METRICS if depth else ()), *(HELDOUT_KEYS if heldout else ()))
 
 
 def score_keys(metric: str, scores: str) -> tuple[str, ...]:
     """The summary keys a metric's cell shows: masked, full-frame, or both (masked first)."""
     if scores not in SCORES:
         raise ValueError(f"scores must be one of {SCORES}, got {scores!r}")
+    if metric in HELDOUT_KEYS:  # no mask: scored at SfM points
+        return (metric,)
     return {"masked": (f"masked_{metric}",), "full": (metric,), "both": (f"masked_{metric}", metric)}[scores]
 
 
@@ -101,11 +99,14 @@ def _format(row: Row, n: int, key: str) -> str:
         return row.printed[(n, key)]
     if (n, key) not in row.values:
         return MISSING
-    return f"{row.values[(n, key)]:.{2 if key.endswith('psnr') else 4}f}"
+    digits = 2 if key.endswith("psnr") else 4
+    spread = f" ± {row.spread[(n, key)]:.{digits}f}" if (n, key) in row.spread else ""
+    return f"{row.values[(n, key)]:.{digits}f}{spread}"
 
 
 def cell(row: Row, n: int, metric: str, scores: str) -> str:
-    """One cell: "0.2688"; "0.2688 (0.3900)" for both scores (masked, then full-frame); "-" without a value."""
+    """One cell: "0.2688"; "0.2688 (0.3900)" for both scores (masked, then full-frame); "0.2688 ± 0.0120" over
+    repeats; "-" without a value."""
     texts = [_format(row, n, key) for key in score_keys(metric, scores)]
     if all(t == MISSING for t in texts):
         return MISSING
@@ -116,7 +117,8 @@ def _line(cells: Sequence[str]) -> str:
     return "| " + " | ".join(cells) + " |"
 
 
-def markdown_table(rows: Sequence[Row], views: Sequence[int], scores: str = "masked", depth: bool = False) -> str:
+def markdown_table(rows: Sequence[Row], views: Sequence[int], scores: str = "masked", depth: bool = False,
+                   heldout: bool = False) -> str:
     """The rows in Table 1's layout. Markdown has no merged header cells, so the header row names each view-count
     group above its first column, and the first body row names the metrics:
 
@@ -126,7 +128,7 @@ def markdown_table(rows: Sequence[Row], views: Sequence[int], scores: str = "mas
 
     Published rows without a value in any shown column are left out.
     """
-    metrics = table_metrics(depth)
+    metrics = table_metrics(depth, heldout)
     keys = [k for m in metrics for k in score_keys(m, scores)]
     groups = [c for n in views for c in (f"{n} views", *[""] * (len(metrics) - 1))]
     lines = [_line(["", *groups]), "|---|" + "---:|" * len(groups),
@@ -138,7 +140,8 @@ def markdown_table(rows: Sequence[Row], views: Sequence[int], scores: str = "mas
     return "\n".join(lines)
 
 
-def caption(scores: str, per_scene: bool, paper: str | None = None) -> str:
+def caption(scores: str, per_scene: bool, paper: str | None = None, repeats: bool = False,
+            heldout: bool = False) -> str:
     """What the numbers of a table are, printed above it."""
     what = {"masked": "Masked scores (pixels seen by at least two train views), as in the paper's Tables 1-2.",
             "full": "Full-frame scores.",
@@ -146,6 +149,11 @@ def caption(scores: str, per_scene: bool, paper: str | None = None) -> str:
     rows = ("One table per scene: the means over its test frames." if per_scene else
             "Each row: the mean over all test frames of the model's scenes with that number of views (as the paper).")
     text = f"{what} {rows} {MISSING}: no run or no score."
+    if repeats:
+        text += (" Cells a ± b: mean ± sample standard deviation over a model's runs of the same scenes (e.g. "
+                 "seeds); the r-th run of each scene makes repeat r.")
+    if heldout:
+        text += " Held-out err.: relative depth error at held-out SfM points (`simplenerf heldout-depth`), per run."
     if paper is not None and per_scene:
         text += (" (paper): the published per-scene numbers SPEC section 8 quotes (the supplement's per-scene tables "
                  "have no body in the .tex).")
@@ -158,22 +166,25 @@ def caption(scores: str, per_scene: bool, paper: str | None = None) -> str:
     return text
 
 
-def csv_rows(table: str, rows: Sequence[Row], views: Sequence[int], scores: str = "masked", depth: bool = False
-             ) -> list[dict[str, str | int]]:
+def csv_rows(table: str, rows: Sequence[Row], views: Sequence[int], scores: str = "masked", depth: bool = False,
+             heldout: bool = False) -> list[dict[str, str | int]]:
     """Long format, one line per value shown: table ("mean", or the scene in per-scene mode), model, source
     ("measured" or "paper"), n_views, metric (the summary key, e.g. masked_lpips), value (full precision; the paper's
-    as printed), scenes (";"-separated, those the value averages), frames (how many test frames it averages; blank
-    for the paper's). Cells without a value have no line."""
+    as printed), scenes (";"-separated, those the value averages), frames (how many test frames it averages, runs for
+    the held-out error; blank for the paper's), std and runs (the standard deviation over a model's repeats and how
+    many; blank without repeats). Cells without a value have no line."""
     out: list[dict[str, str | int]] = []
     for row in rows:
         for n in views:
-            for metric in table_metrics(depth):
+            for metric in table_metrics(depth, heldout):
                 for key in score_keys(metric, scores):
                     if (n, key) in row.values:
                         value = row.printed.get((n, key), repr(row.values[(n, key)]))
                         out.append({"table": table, "model": row.model, "source": "paper" if row.paper else "measured",
                                     "n_views": n, "metric": key, "value": value,
-                                    "scenes": ";".join(row.scenes.get(n, ())), "frames": row.frames.get((n, key), "")})
+                                    "scenes": ";".join(row.scenes.get(n, ())), "frames": row.frames.get((n, key), ""),
+                                    "std": repr(row.spread[(n, key)]) if (n, key) in row.spread else "",
+                                    "runs": row.runs[n] if (n, key) in row.spread else ""})
     return out
 
 
@@ -184,66 +195,3 @@ def write_csv(path: Path, lines: Sequence[dict[str, str | int]]) -> None:
         writer = csv.DictWriter(f, fieldnames=CSV_FIELDS)
         writer.writeheader()
         writer.writerows(lines)
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="results_table.py",
-        description="Tested runs as a table in the layout of the paper's Tables 1-2 (markdown on stdout).",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="examples:\n  python tools/results_table.py SimpleNeRF='runs/llff/*' DS-NeRF=runs/dsnerf_fern_2v "
-               "--paper llff --csv results.csv\n"
-               "  python tools/results_table.py ../shared/reference_scores/test10{1,2,3}1 --paper llff  # the authors'"
-               " frames")
-    parser.add_argument("runs", nargs="*", metavar="NAME=RUN_DIR",
-                        help="a run folder (or its test/ folder) and the model name its row gets; several runs may "
-                             "share a NAME (its row averages the frames of their scenes); RUN_DIR may be a quoted "
-                             "glob, or a folder of the authors' test runs (QA_Scores/ with per-frame CSVs; NAME= "
-                             "optional, @N after it gives its number of views if its name is not one of the release's)")
-    parser.add_argument("--scores", choices=SCORES, default="masked",
-                        help="masked (default, the paper's main tables), full (full frame), or both: 'masked (full)'")
-    parser.add_argument("--depth", action="store_true", help="add depth MAE and SROCC columns to each group")
-    parser.add_argument("--per-scene", action="store_true", help="one table per scene instead of means over scenes")
-    parser.add_argument("--views", type=int, nargs="+", metavar="N",
-                        help="the view-count groups to show, e.g. 2 3 4 (default: those with runs or paper values)")
-    parser.add_argument("--paper", choices=list(TABLES),
-                        help="also show the paper's published rows of that table, marked (paper)")
-    parser.add_argument("--csv", type=Path, metavar="FILE", help="also write the shown values to FILE, long format")
-    return parser
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """The results table command line; returns the exit status (2 after a one-line error)."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not args.runs and args.paper is None:
-        parser.error("give NAME=RUN_DIR arguments, --paper, or both")
-    try:
-        records = load_records(expand_runs(args.runs))
-    except DataError as e:
-        print(f"results_table: error: {e}", file=sys.stderr)
-        return 2
-    keys = [k for m in table_metrics(args.depth) for k in score_keys(m, args.scores)]
-    if args.per_scene:
-        # The scenes of the runs; with no runs, those the paper has per-scene numbers for.
-        tables = per_scene_rows(records) or {scene: [] for scene in TABLES[args.paper].per_scene}
-        if args.paper is not None:
-            tables = {scene: paper_rows(args.paper, scene) + rows for scene, rows in tables.items()}
-    else:
-        tables = {"mean": (paper_rows(args.paper) if args.paper is not None else []) + mean_rows(records)}
-        messages = [f"warning: {w}" for w in coverage_warnings(records, keys)]
-        if args.paper is not None:
-            messages += [f"note: {n}" for n in paper_scene_notes(records, args.paper)]
-        for message in messages:
-            print(message, file=sys.stderr)
-    blocks, lines = [caption(args.scores, args.per_scene, args.paper)], []
-    for name, rows in tables.items():
-        views = sorted(args.views) if args.views else table_views(rows, keys)
-        if args.per_scene:
-            blocks.append(f"### {name}")
-        blocks.append(markdown_table(rows, views, args.scores, args.depth))
-        lines += csv_rows(name, rows, views, args.scores, args.depth)
-    print("\n\n".join(blocks))
-    if args.csv is not None:
-        write_csv(args.csv, lines)
-    return 0

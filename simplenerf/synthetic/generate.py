@@ -34,7 +34,6 @@ On disk (`make_synthetic_scene`), the layout is LLFF's `nerf_llff_data/<scene>/`
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -329,32 +328,3 @@ def make_synthetic_scene(
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return root
-
-
-def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description="Write the synthetic LLFF-style scene.")
-    parser.add_argument("out_dir", type=Path)
-    parser.add_argument("--height", type=int, default=96)
-    parser.add_argument("--width", type=int, default=128)
-    parser.add_argument("--n-frames", type=int, default=20)
-    parser.add_argument("--factors", type=int, nargs="+", default=[1])
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--kind", choices=SCENE_KINDS, default="planes")
-    parser.add_argument("--overwrite", action="store_true")
-    args = parser.parse_args(argv)
-    path = make_synthetic_scene(
-        args.out_dir,
-        height=args.height,
-        width=args.width,
-        n_frames=args.n_frames,
-        factors=args.factors,
-        seed=args.seed,
-        overwrite=args.overwrite,
-        kind=args.kind,
-    )
-    print(path)
-
-
-if __name__ == "__main__":
-    main()
-

@@ -204,7 +204,7 @@ def render_scene_video(
 
 class TrainingVideo(L.Callback):
     """At the end of `fit`, the video of the trained model ([RGB | depth] along the scene's camera path, as
-    tools/render_video.py) in `<trainer.default_root_dir>/video_<path>.mp4`, logged to every logger that takes
+    `simplenerf render-video`) in `<trainer.default_root_dir>/video_<path>.mp4`, logged to every logger that takes
     videos (W&B: the media panel `video/<path>`). Rendered by global rank 0; off unless `frames` > 0."""
 
     def __init__(self, frames: NonNegativeInt = 0, rotations: float = 2, factor_down: PositiveInt = 1,

@@ -220,18 +220,18 @@ def test_export_visibility_masks(synthetic_scene, tmp_path) -> None:
         assert np.array_equal(picture, np.where(array, 255, 0))
 
     scene.views.depths = None
-    with pytest.raises(DataError, match=f"scene {synthetic_scene} has no reference depth.*export_reference_depth.py"):
+    with pytest.raises(DataError, match=f"scene {synthetic_scene} has no reference depth.*`simplenerf export-depth`"):
         export_visibility_masks(scene, tmp_path / "none")
     assert not (tmp_path / "none").exists()
 
 
-def test_make_visibility_masks_tool(synthetic_scene, tmp_path) -> None:
+def test_visibility_masks_verb(synthetic_scene, tmp_path) -> None:
     import subprocess
     import sys
 
     def tool(scene_dir: Path) -> subprocess.CompletedProcess:
         return subprocess.run(
-            [sys.executable, "tools/make_visibility_masks.py", "--config", "configs/dsnerf.yaml", "--",
+            [sys.executable, "-m", "simplenerf", "visibility-masks", "--config", "configs/dsnerf.yaml", "--",
              "--data.init_args.scene_dir", str(scene_dir), "--data.init_args.factor", "1",
              "--trainer.default_root_dir", str(tmp_path / "run")],
             cwd=REPO, capture_output=True, text=True, timeout=300,

@@ -20,7 +20,7 @@ import pytest
 import torch
 import yaml
 
-from simplenerf.cli import main
+from simplenerf.commands import main
 from simplenerf.experiments.executors import submit_slurm, units_to_run
 from simplenerf.experiments.jobs import run_unit
 from simplenerf.experiments.plan import build_plan

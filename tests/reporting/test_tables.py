@@ -7,10 +7,11 @@ import sys
 
 import pytest
 
+from simplenerf import commands
+from simplenerf.commands.results import main
 from simplenerf.errors import DataError
 from simplenerf.reporting import paper_scores
 from simplenerf.reporting.records import KEYS, RELEASE_MODEL, expand_runs, load_records, mean_rows
-from simplenerf.reporting.tables import main
 from tests.conftest import REPO, require_shared
 
 # (model, scene, views) -> masked LPIPS, SSIM, PSNR, full-frame LPIPS, SSIM, PSNR, masked depth MAE, SROCC.
@@ -71,7 +72,7 @@ def table_lines(out):
 
 
 def test_table1_layout_means_and_missing_views(runs, capsys):
-    assert main([*args_for(runs), "--views", "2", "3", "4"]) == 0
+    main([*args_for(runs), "--views", "2", "3", "4"])
     out, err = capsys.readouterr()
     assert out.splitlines()[0].startswith("Masked scores (pixels seen by at least two train views)")
     assert table_lines(out) == [
@@ -116,10 +117,10 @@ def test_csv_long_format(runs, tmp_path, capsys):
     main([*args_for(runs), "--scores", "both", "--csv", str(tmp_path / "out" / "table.csv")])
     with open(tmp_path / "out" / "table.csv", newline="") as f:
         lines = list(csv.reader(f))
-    assert lines[0] == ["table", "model", "source", "n_views", "metric", "value", "scenes", "frames"]
-    assert lines[1] == ["mean", "SimpleNeRF", "measured", "2", "masked_lpips", "0.375", "fern;horns", "6"]
-    assert lines[2] == ["mean", "SimpleNeRF", "measured", "2", "lpips", "0.5", "fern;horns", "6"]
-    assert ["mean", "DS-NeRF", "measured", "3", "psnr", "17.5", "fern;horns", "6"] in lines
+    assert lines[0] == ["table", "model", "source", "n_views", "metric", "value", "scenes", "frames", "std", "runs"]
+    assert lines[1] == ["mean", "SimpleNeRF", "measured", "2", "masked_lpips", "0.375", "fern;horns", "6", "", ""]
+    assert lines[2] == ["mean", "SimpleNeRF", "measured", "2", "lpips", "0.5", "fern;horns", "6", "", ""]
+    assert ["mean", "DS-NeRF", "measured", "3", "psnr", "17.5", "fern;horns", "6", "", ""] in lines
     assert len(lines) == 1 + 2 * 2 * 6  # models x views x (3 metrics, masked and full)
 
 
@@ -254,11 +255,13 @@ def test_errors_say_what_to_do(tmp_path, capsys):
         expand_runs([f"A={tmp_path}/nothing_*"])
     write_run(tmp_path / "x", "fern", 2, RUNS[("SimpleNeRF", "fern", 2)])
     write_run(tmp_path / "y", "fern", 2, RUNS[("SimpleNeRF", "fern", 2)])
-    with pytest.raises(DataError, match="are both A on fern with 2 views"):
-        load_records(expand_runs([f"A={tmp_path}/x", f"A={tmp_path}/y"]))
-    assert main([f"A={tmp_path}/missing"]) == 2
+    write_run(tmp_path / "z", "horns", 2, RUNS[("SimpleNeRF", "horns", 2)])
+    with pytest.raises(DataError, match="A with 2 views has 2 of fern, 1 of horns: give every scene the same number"):
+        mean_rows(load_records(expand_runs([f"A={tmp_path}/x", f"A={tmp_path}/y", f"A={tmp_path}/z"])))
+    with pytest.raises(SystemExit) as stop:
+        commands.main(["results", f"A={tmp_path}/missing"])
     err = capsys.readouterr().err
-    assert err.startswith("results_table: error: ") and err.count("\n") == 1
+    assert stop.value.code == 2 and err.startswith("simplenerf: error: ") and err.count("\n") == 1
 
 
 def test_mean_rows_keep_the_given_model_order(runs):
@@ -271,11 +274,61 @@ def test_mean_rows_keep_the_given_model_order(runs):
 
 
 def test_the_tool_runs(runs):
-    tool = [sys.executable, str(REPO / "tools" / "results_table.py")]
+    tool = [sys.executable, str(REPO / "tools" / "results.py")]
     done = subprocess.run([*tool, f"SimpleNeRF={runs}/SimpleNeRF/*"], capture_output=True, text=True, check=True)
     assert "| SimpleNeRF | 0.3750 | 0.6250 | 20.50 | 0.1875 | 0.7500 | 22.50 |" in done.stdout
     failed = subprocess.run([*tool, f"A={runs}/none"], capture_output=True, text=True)
-    assert failed.returncode == 2 and failed.stderr.startswith("results_table: error: ")
+    assert failed.returncode == 2 and failed.stderr.startswith("simplenerf: error: ")
+
+
+def test_repeats_of_a_scene_are_mean_and_sample_std(tmp_path, capsys):
+    """What tools/compare_runs.py's seed table gave: a NAME given for several runs of the same scene and views (seeds)
+    is one row of mean ± sample standard deviation over them; a model with one run keeps plain cells."""
+    a0 = write_run(tmp_path / "a0", "fern", 2, (0.25, 0.5, 20.0, 0.375, 0.375, 18.0, 0.125, 0.75))
+    a1 = write_run(tmp_path / "a1", "fern", 2, (0.75, 0.5, 22.0, 0.375, 0.375, 18.0, 0.125, 0.75))
+    b = write_run(tmp_path / "b", "fern", 2, RUNS[("DS-NeRF", "fern", 2)])
+    main([f"A={a0}", f"A={a1}", f"B={b}", "--csv", str(tmp_path / "t.csv")])
+    out = capsys.readouterr().out
+    assert "Cells a ± b: mean ± sample standard deviation over a model's runs of the same scenes" in out
+    assert table_lines(out)[3:] == ["| A (2 runs) | 0.5000 ± 0.3536 | 0.5000 ± 0.0000 | 21.00 ± 1.41 |",
+                                    "| B | 0.5000 | 0.2500 | 17.00 |"]
+    with open(tmp_path / "t.csv", newline="") as f:
+        lines = list(csv.reader(f))
+    assert lines[3] == ["mean", "A", "measured", "2", "masked_psnr", "21.0", "fern", "6", repr(2**0.5), "2"]
+    assert lines[4] == ["mean", "B", "measured", "2", "masked_lpips", "0.5", "fern", "3", "", ""]
+
+
+def test_repeats_over_scenes_pair_the_runs_in_order(tmp_path):
+    """Repeat r is the r-th run of each scene: its value is the mean over its scenes' frames."""
+    runs = [write_run(tmp_path / f"{scene}{seed}", scene, 2, (0.25, 0.5, psnr, 0.375, 0.375, 18.0, 0.125, 0.75))
+            for scene, seed, psnr in (("fern", 0, 20.0), ("horns", 0, 22.0), ("fern", 1, 23.0), ("horns", 1, 25.0))]
+    row = mean_rows(load_records([("A", run) for run in runs]))[0]
+    assert row.values[(2, "masked_psnr")] == 22.5  # repeats 21 and 24
+    assert row.spread[(2, "masked_psnr")] == pytest.approx(4.5**0.5)  # stdev(21, 24)
+    assert row.runs == {2: 2} and row.scenes == {2: ("fern", "horns")} and row.frames[(2, "masked_psnr")] == 12
+
+
+def test_heldout_depth_error_joins_the_depth_columns(tmp_path, capsys):
+    """What tools/compare_runs.py showed for real scenes without reference depth: `<run>/heldout_depth.json` (from
+    `simplenerf heldout-depth --out`) as columns with --depth, averaged over a model's runs."""
+    for name, mean, median in (("a", 0.25, 0.125), ("b", 0.5, 0.25)):
+        run = write_run(tmp_path / name, "fern", 2, RUNS[("SimpleNeRF", "fern", 2)])
+        (run / "heldout_depth.json").write_text(json.dumps({"rel_error_mean": mean, "rel_error_median": median}))
+    main([f"A={tmp_path}/a", f"A={tmp_path}/b", "--depth", "--scores", "full"])
+    lines = table_lines(capsys.readouterr().out)
+    assert lines[2] == ("| Model | LPIPS ↓ | SSIM ↑ | PSNR ↑ | MAE ↓ | SROCC ↑ | held-out err. ↓ | "
+                        "held-out err. median ↓ |")
+    assert lines[3] == ("| A (2 runs) | 0.3750 ± 0.0000 | 0.3750 ± 0.0000 | 18.00 ± 0.00 | - | - | 0.3750 ± 0.1768 | "
+                        "0.1875 ± 0.0884 |")
+    main([f"A={tmp_path}/a", "--scores", "full"])  # without --depth: no depth columns
+    assert table_lines(capsys.readouterr().out)[2] == "| Model | LPIPS ↓ | SSIM ↑ | PSNR ↑ |"
+
+
+def test_runs_without_masked_scores_point_to_full_frame_scores(tmp_path, capsys):
+    write_run(tmp_path / "a", "fern", 2, None, psnr=20.0, ssim=0.5, lpips=0.25)
+    main([f"A={tmp_path}/a"])
+    assert capsys.readouterr().err == ("note: no run has masked scores (its scene has no reference depth); --scores "
+                                       "full shows the full-frame ones\n")
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -300,7 +353,7 @@ def test_the_release_row_is_the_papers_row(capsys):
     """The tool on the authors' 2/3/4-view LLFF folders prints the paper's Table 1 SimpleNeRF row and its depth
     table's LLFF row, digit for digit; the full-frame 2-view row gives the numbers SPEC section 8 quotes."""
     folders = [str(require_shared(f"reference_scores/{f}")) for f in ("test1011", "test1021", "test1031")]
-    assert main([*folders, "--paper", "llff", "--depth"]) == 0
+    main([*folders, "--paper", "llff", "--depth"])
     out, err = capsys.readouterr()
     lines = table_lines(out)
     paper = lines[-2].replace("SimpleNeRF (paper)", RELEASE_MODEL).strip("| ").split(" | ")

@@ -15,7 +15,7 @@ import pytest
 from PIL import Image
 from PIL.TiffImagePlugin import IFDRational
 
-from simplenerf.cli import main as cli_main
+from simplenerf.commands import main as cli_main
 from simplenerf.data.llff import load_llff_scene
 from simplenerf.errors import DataError
 from simplenerf.geometry.poses import poses_to_opengl, to_poses_bounds

@@ -1,4 +1,4 @@
-"""Geometry export (simplenerf.viz.export, tools/export_geometry.py): depth maps and a fused PLY point cloud, read
+"""Geometry export (simplenerf.viz.export, `simplenerf export-geometry`): depth maps and a fused PLY point cloud, read
 back with a minimal PLY reader."""
 
 from __future__ import annotations
@@ -104,19 +104,18 @@ def test_export_of_a_tiny_model(synthetic_scene, tmp_path) -> None:
     assert saved["scale"] == pytest.approx(scene.scale)
 
 
-def test_export_geometry_tool_on_the_demo_config(tmp_path, monkeypatch) -> None:
+def test_export_geometry_verb_on_the_demo_config(tmp_path) -> None:
     from simplenerf.lightning_cli import make_cli
     from tests.test_cli import run_args
 
-    monkeypatch.setattr(sys, "argv", sys.argv[:1])  # the CLI reads these arguments, not pytest's
     args = run_args(tmp_path)
     cli = make_cli([*args, "--trainer.logger", "false"], run=False)  # an untrained model: its state dict will do
     ckpt = tmp_path / "model.ckpt"
     torch.save({"state_dict": cli.model.state_dict()}, ckpt)
     env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true"}
-    proc = subprocess.run([sys.executable, "tools/export_geometry.py", "--config", "configs/demo.yaml", "--ckpt",
-                           str(ckpt), "--min-accumulation", "0", "--far-factor", "0", "--stride", "4", "--", *args[2:]],
-                          cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run([sys.executable, "-m", "simplenerf", "export-geometry", "--config", "configs/demo.yaml",
+                           "--ckpt", str(ckpt), "--min-accumulation", "0", "--far-factor", "0", "--stride", "4", "--",
+                           *args[2:]], cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = tmp_path / "run" / "geometry"
     saved = json.loads((out / "export.json").read_text())

@@ -118,15 +118,14 @@ def test_render_video_leaves_nothing_when_interrupted_or_unwritable(tmp_path, mo
 
 def run_tool(*args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true"}
-    return subprocess.run([sys.executable, "tools/render_video.py", *args], cwd=REPO, env=env, capture_output=True,
-                          text=True, timeout=600)
+    return subprocess.run([sys.executable, "-m", "simplenerf", "render-video", *args], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=600)
 
 
-def test_render_video_tool_on_the_demo_config(tmp_path, monkeypatch):
+def test_render_video_verb_on_the_demo_config(tmp_path):
     from simplenerf.lightning_cli import make_cli
     from tests.test_cli import run_args
 
-    monkeypatch.setattr(sys, "argv", sys.argv[:1])  # the CLI reads these arguments, not pytest's
     args = run_args(tmp_path)
     cli = make_cli([*args, "--trainer.logger", "false"], run=False)  # an untrained model: its state dict will do
     ckpt = tmp_path / "model.ckpt"
@@ -140,8 +139,8 @@ def test_render_video_tool_on_the_demo_config(tmp_path, monkeypatch):
     assert len(frames) == 3 and frames[0].shape == (24, 64, 3)
 
 
-def test_render_video_tool_missing_checkpoint_is_one_line_error(tmp_path):
+def test_render_video_verb_missing_checkpoint_is_one_line_error(tmp_path):
     proc = run_tool("--config", "configs/demo.yaml", "--ckpt", str(tmp_path / "nope.ckpt"))
     assert proc.returncode == 2
-    expected = f"render_video: error: checkpoint {tmp_path / 'nope.ckpt'} does not exist"
+    expected = f"simplenerf: error: checkpoint {tmp_path / 'nope.ckpt'} does not exist"
     assert proc.stderr.strip().splitlines() == [expected]

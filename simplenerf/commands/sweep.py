@@ -1,16 +1,19 @@
-"""`python -m simplenerf sweep ...`: the paper's experiments as one command (see simplenerf/experiments/__init__.py).
+"""Scenes x views x models x seeds as jobs: dense reference NeRF -> reference depth -> visibility masks; fit -> test
+-> results table (markdown + CSV in the sweep folder). Rerunning skips what finished, resumes what was cut and reruns
+what failed (simplenerf.experiments, docs/experiments.md), e.g.
 
-    simplenerf sweep --config configs/sweeps/llff_table1.yaml [--executor slurm|local|debug] [--dry-run]
-    simplenerf sweep status SWEEP_DIR
-    simplenerf sweep job SWEEP_DIR STAGE INDEX      (what the sbatch scripts of --dry-run run)
+    simplenerf sweep --config configs/sweeps/cpu_grid.yaml --executor local
+    simplenerf sweep --config configs/sweeps/llff_table1.yaml --executor slurm --dry-run
+    simplenerf sweep status SWEEP_DIR                 (every job's state)
+    simplenerf sweep job SWEEP_DIR STAGE INDEX        (what the sbatch scripts of --dry-run run)
 """
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
+from simplenerf.commands import CommandParser
 from simplenerf.experiments.executors import (
     run_here,
     submit_slurm,
@@ -24,13 +27,8 @@ from simplenerf.experiments.state import process_alive, read_state, read_status
 from simplenerf.experiments.status import status_table
 
 
-def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="simplenerf sweep",
-        description="Scenes x views x models x seeds as jobs: dense reference NeRF -> reference depth -> visibility "
-        "masks; fit -> test -> results table (markdown + CSV in the sweep folder). Rerunning skips what finished, "
-        "resumes what was cut and reruns what failed. `simplenerf sweep status SWEEP_DIR` lists every job.",
-    )
+def parser() -> CommandParser:
+    p = CommandParser("sweep", __doc__)
     p.add_argument("--config", required=True, help="the sweep file (e.g. configs/sweeps/cpu_grid.yaml)")
     p.add_argument("--executor", choices=EXECUTORS, help="slurm, local or debug (default: the sweep file's)")
     p.add_argument("--dry-run", action="store_true",

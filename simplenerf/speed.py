@@ -1,7 +1,8 @@
-"""Speed of a configured model on this machine: training iterations, full-frame rendering, a profile of one step.
+"""Seconds per training step and peak memory of a configured model on this machine (`simplenerf benchmark`; the
+scripts in benchmarks/ build on it).
 
-Everything starts from the public CLI (`make_cli(args, run=False)`): the model and data module are the ones
-`python -m simplenerf fit` would build, batches come from the data module, and Lightning runs the step (precision,
+Everything starts from the public CLI (`lightning_cli.make_cli(args, run=False)`): the model and data module are the ones
+`simplenerf fit` would build, batches come from the data module, and Lightning runs the step (precision,
 accelerator). The config's own trainer callbacks are NOT used, the warm-up `LossWeightSchedule` among them: every
 loss is computed at its configured weight, i.e. the cost of a step after the paper's 10k-step warm-up (the release
 computes its masked losses at weight 0 too, so this is also what the release pays from step 0).
@@ -23,7 +24,6 @@ Memory: peak RSS is the process's `ru_maxrss` (data included), peak CUDA is `tor
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import platform
 import resource
@@ -34,7 +34,6 @@ import time
 import lightning as L
 import torch
 from torch import nn
-from torch.utils.data import DataLoader
 
 GIB = 2**30
 
@@ -109,7 +108,7 @@ def matmul_flop_per_ray(model: nn.Module, training: bool = True) -> float:
     return 2.0 * macs * (3 if training else 1)
 
 
-def _spread(values: list[float], prefix: str) -> dict[str, float | list[float] | None]:
+def spread(values: list[float], prefix: str) -> dict[str, float | list[float] | None]:
     return {
         prefix: statistics.median(values) if values else None,
         f"{prefix}_min": min(values) if values else None,
@@ -118,12 +117,12 @@ def _spread(values: list[float], prefix: str) -> dict[str, float | list[float] |
     }
 
 
-def _cpu_seconds() -> float:
+def cpu_seconds() -> float:
     usage = resource.getrusage(resource.RUSAGE_SELF)
     return usage.ru_utime + usage.ru_stime
 
 
-def _synchronize(module: L.LightningModule) -> None:
+def synchronize(module: L.LightningModule) -> None:
     if module.device.type == "cuda":
         torch.cuda.synchronize(module.device)
 
@@ -145,7 +144,7 @@ class StepTimer(L.Callback):
         self._usage = resource.getrusage(resource.RUSAGE_SELF)
 
     def on_train_start(self, trainer, pl_module) -> None:
-        _synchronize(pl_module)
+        synchronize(pl_module)
         self.rss_at_start_gib, self.peak_rss_at_start_gib = current_rss_gib(), peak_rss_gib()
         if pl_module.device.type == "cuda":
             torch.cuda.reset_peak_memory_stats(pl_module.device)
@@ -153,11 +152,11 @@ class StepTimer(L.Callback):
         self._last_end = time.perf_counter()
 
     def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
-        _synchronize(pl_module)
+        synchronize(pl_module)
         self._start = time.perf_counter()
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
-        _synchronize(pl_module)
+        synchronize(pl_module)
         now = time.perf_counter()
         usage = resource.getrusage(resource.RUSAGE_SELF)
         self.iteration_s.append(now - self._last_end)
@@ -168,7 +167,7 @@ class StepTimer(L.Callback):
         self._last_end, self._usage = now, usage
 
 
-def _trainer(precision: str, accelerator: str, devices: int | str, **kwargs) -> L.Trainer:
+def measuring_trainer(precision: str, accelerator: str, devices: int | str, **kwargs) -> L.Trainer:
     return L.Trainer(
         precision=precision,
         accelerator=accelerator,
@@ -183,7 +182,7 @@ def _trainer(precision: str, accelerator: str, devices: int | str, **kwargs) -> 
     )
 
 
-def _cuda_peaks(device: torch.device) -> dict[str, float | None]:
+def cuda_peaks(device: torch.device) -> dict[str, float | None]:
     if device.type != "cuda":
         return {"peak_cuda_gib": None, "peak_cuda_reserved_gib": None}
     return {
@@ -216,7 +215,7 @@ def time_training(
     if steps < 1 or warmup < 0:
         raise ValueError(f"need steps >= 1 and warmup >= 0, got {steps}, {warmup}")
     timer = StepTimer()
-    trainer = _trainer(precision, accelerator, devices, max_steps=warmup + steps, callbacks=[timer])
+    trainer = measuring_trainer(precision, accelerator, devices, max_steps=warmup + steps, callbacks=[timer])
     trainer.fit(model, datamodule)
     timed = timer.iteration_s[warmup:]
     if len(timed) < steps:
@@ -231,7 +230,7 @@ def time_training(
         "field_evaluations_per_ray": field_evaluations_per_ray(model),
         "field_evaluations_per_it": evaluations,
         "approx_matmul_tflop_per_it": flop / 1e12,
-        **_spread(timed, "s_per_it"),
+        **spread(timed, "s_per_it"),
         "step_s": statistics.median(timer.step_s[warmup:]),
         "user_s_per_it": statistics.median(timer.user_s[warmup:]),
         "sys_s_per_it": statistics.median(timer.sys_s[warmup:]),
@@ -247,117 +246,10 @@ def time_training(
         peak_rss_gib=peak_rss_gib(),
         peak_rss_at_train_start_gib=timer.peak_rss_at_start_gib,
         rss_at_start_gib=timer.rss_at_start_gib,
-        **_cuda_peaks(model.device),
+        **cuda_peaks(model.device),
         device=device_name(model.device),
         loss_weights={k: float(v) for k, v in getattr(model, "loss_weights", {}).items()},
         losses={k.removeprefix("train/loss_"): float(v) for k, v in trainer.callback_metrics.items()
                 if k.startswith("train/loss_")},
     )
     return result
-
-
-class FrameTimer(L.Callback):
-    """Wall time and size of every rendered frame of `trainer.predict`."""
-
-    def __init__(self) -> None:
-        self.seconds: list[float] = []
-        self.cpu_s: list[float] = []
-        self.rays: list[int] = []
-        self.shape: tuple[int, ...] | None = None
-        self._start = 0.0
-        self._cpu = 0.0
-
-    def on_predict_start(self, trainer, pl_module) -> None:
-        if pl_module.device.type == "cuda":
-            torch.cuda.reset_peak_memory_stats(pl_module.device)
-
-    def on_predict_batch_start(self, trainer, pl_module, batch, batch_idx, dataloader_idx=0) -> None:
-        _synchronize(pl_module)
-        self._start, self._cpu = time.perf_counter(), _cpu_seconds()
-
-    def on_predict_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
-        _synchronize(pl_module)
-        self.seconds.append(time.perf_counter() - self._start)
-        self.cpu_s.append(_cpu_seconds() - self._cpu)
-        rgb = outputs["rgb"] if isinstance(outputs, dict) else outputs.rgb
-        self.shape = tuple(rgb.shape[:-1])
-        self.rays.append(rgb.numel() // rgb.shape[-1])
-
-
-def crop_rows(frame, rows: int):
-    """The top `rows` rows of a full-frame item (pixels in row-major order): every tensor whose first dimension is
-    height * width is cut to rows * width and `height` becomes `rows`. Works on dicts and dataclasses (nested too)."""
-    from lightning.fabric.utilities.apply_func import apply_to_collection
-
-    def get(name: str):
-        return frame.get(name) if isinstance(frame, dict) else getattr(frame, name, None)
-
-    height, width = get("height"), get("width")
-    if height is None or width is None:
-        raise TypeError(f"cannot crop a frame of type {type(frame).__name__}: it has no height and width")
-    height, width = int(height), int(width)
-    rows = min(rows, height)
-    pixels, kept = height * width, rows * width
-    cut = apply_to_collection(frame, torch.Tensor, lambda t: t[:kept] if t.ndim and t.shape[0] == pixels else t)
-    if isinstance(cut, dict):
-        cut["height"] = rows
-    else:
-        cut = dataclasses.replace(cut, height=rows)
-    return cut
-
-
-class _CroppedFrames(torch.utils.data.Dataset):
-    def __init__(self, frames: torch.utils.data.Dataset, rows: int) -> None:
-        self.frames, self.rows = frames, rows
-
-    def __len__(self) -> int:
-        return len(self.frames)
-
-    def __getitem__(self, i: int):
-        return crop_rows(self.frames[i], self.rows)
-
-
-def time_rendering(
-    model: L.LightningModule,
-    datamodule: L.LightningDataModule,
-    frames: int,
-    warmup: int = 0,
-    precision: str = "32-true",
-    ckpt: str | None = None,
-    accelerator: str = "auto",
-    devices: int | str = 1,
-    rows: int | None = None,
-) -> dict:
-    """Renders warmup + frames test views (the data module's predict frames, in order) through `trainer.predict`
-    and reports the timed ones: s_per_frame (median; _min, _max, _all), rays_per_s, field evaluations per second,
-    peak memory. Without `ckpt` the weights are the initial ones: the same work per ray, other pictures. `rows`:
-    render only the top rows of each frame (a quick check of rays/s; the work per ray is the same)."""
-    timer = FrameTimer()
-    trainer = _trainer(precision, accelerator, devices, limit_predict_batches=warmup + frames, callbacks=[timer])
-    if rows is None:
-        trainer.predict(model, datamodule=datamodule, ckpt_path=ckpt, return_predictions=False)
-    else:
-        datamodule.setup("predict")
-        loader = DataLoader(_CroppedFrames(datamodule.predict_dataloader().dataset, rows), batch_size=None)
-        trainer.predict(model, dataloaders=loader, ckpt_path=ckpt, return_predictions=False)
-    timed, rays = timer.seconds[warmup:], timer.rays[warmup:]
-    if not timed:
-        raise RuntimeError(f"no frame left to time: {len(timer.seconds)} rendered, {warmup} warm-up")
-    per_ray = field_evaluations_per_ray(model, training=False)
-    seconds = sum(timed)
-    return {
-        "frames_timed": len(timed),
-        "frame_shape": list(timer.shape or ()),
-        "rays_per_frame": statistics.median(rays),
-        **_spread(timed, "s_per_frame"),
-        "warmup_s": [round(v, 4) for v in timer.seconds[:warmup]],
-        "cpu_s_per_frame": statistics.median(timer.cpu_s[warmup:]),
-        "rays_per_s": sum(rays) / seconds,
-        "field_evaluations_per_ray": per_ray,
-        "field_evaluations_per_s": per_ray * sum(rays) / seconds,
-        "approx_matmul_tflops": matmul_flop_per_ray(model, training=False) * sum(rays) / seconds / 1e12,
-        "chunk": getattr(model, "hparams", {}).get("chunk"),
-        "peak_rss_gib": peak_rss_gib(),
-        **_cuda_peaks(model.device),
-        "device": device_name(model.device),
-    }

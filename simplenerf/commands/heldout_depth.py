@@ -1,30 +1,32 @@
-"""Depth error of a trained model at held-out SfM points (see simplenerf.evaluation.heldout_depth), e.g.
+"""A trained run's depth error at held-out SfM points: the depth score of a real scene without reference depth
+(simplenerf.evaluation.heldout_depth), e.g.
 
-    python tools/heldout_depth_error.py --config configs/dsnerf.yaml --ckpt runs/dsnerf/checkpoints/last.ckpt \
+    simplenerf heldout-depth --config configs/dsnerf.yaml --ckpt runs/dsnerf/checkpoints/last.ckpt \
+        --out runs/dsnerf/heldout_depth.json \
         -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.factor 8
 
 Everything after `--` is passed to the CLI as overrides; `--config` may be the run's own `<run>/config.yaml`. Prints
 one JSON line: the fine depth's error, and under "depths" that of every depth the model renders (fine, coarse and each
-augmentation's); with `--out FILE` also writes it there (`<run>/heldout_depth.json` is where
-`tools/compare_runs.py` looks for it).
+augmentation's); with `--out FILE` also writes it there (`<run>/heldout_depth.json` is where `simplenerf results`
+looks for it).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
+from collections.abc import Sequence
 from pathlib import Path
 
-from simplenerf.cli import run_tool, split_overrides
+from simplenerf.lightning_cli import load_for_tool
+from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.heldout_depth import heldout_depth_error, heldout_observations
 from simplenerf.lightning_cli import load_for_tool
 
 
-def main() -> None:
-    own, overrides = split_overrides(sys.argv[1:])
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", required=True)
+def main(argv: Sequence[str]) -> None:
+    own, overrides = split_overrides(argv)
+    parser = CommandParser("heldout-depth", __doc__)
+    parser.add_argument("--config", required=True, help="config file of the run (e.g. <run>/config.yaml)")
     parser.add_argument("--ckpt", required=True, help="checkpoint of the trained model")
     parser.add_argument("--cache", default="data/cache/sparse_depth", help="where the SfM reference is cached")
     parser.add_argument("--out", help="also write the JSON result to this file")
@@ -37,7 +39,3 @@ def main() -> None:
     print(line)
     if args.out:
         Path(args.out).write_text(line + "\n")
-
-
-if __name__ == "__main__":
-    run_tool(main, "heldout_depth_error")

@@ -1,8 +1,8 @@
-"""Writes a dense NeRF's depth of every frame of its scene (see simplenerf.evaluation.reference_depth), e.g.
+"""A dense NeRF's depth of every frame of its scene: the reference depth of the masked scores and of the depth
+metrics (simplenerf.evaluation.reference_depth), e.g.
 
-    python tools/export_reference_depth.py --config configs/dense/llff.yaml \
-        --ckpt runs/dense/llff/checkpoints/last.ckpt --out data/reference_depth/fern \
-        -- --data.init_args.scene_dir data/nerf_llff_data/fern
+    simplenerf export-depth --config configs/dense/llff.yaml --ckpt runs/dense/llff/checkpoints/last.ckpt \
+        --out data/reference_depth/fern -- --data.init_args.scene_dir data/nerf_llff_data/fern
 
 Everything after `--` is passed to the CLI as overrides (use the ones the dense NeRF was trained with). Evaluate an
 n-view run against it with `--data.init_args.reference_depth_dir data/reference_depth/fern`. RealEstate-10K: the
@@ -11,20 +11,20 @@ reference for n views is the dense NeRF trained with `--data.init_args.split_vie
 
 from __future__ import annotations
 
-import argparse
-import sys
+from collections.abc import Sequence
 
 import torch
 
-from simplenerf.cli import run_tool, split_overrides
+from simplenerf.lightning_cli import load_for_tool
+from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.reference_depth import export_reference_depth
 from simplenerf.lightning_cli import load_for_tool
 
 
-def main() -> None:
-    own, overrides = split_overrides(sys.argv[1:])
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", required=True)
+def main(argv: Sequence[str]) -> None:
+    own, overrides = split_overrides(argv)
+    parser = CommandParser("export-depth", __doc__)
+    parser.add_argument("--config", required=True, help="config file of the dense NeRF")
     parser.add_argument("--ckpt", required=True, help="checkpoint of the dense NeRF")
     parser.add_argument("--out", required=True, help="folder for <frame name>.npy (created if missing)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu",
@@ -34,7 +34,3 @@ def main() -> None:
     dm, model = cli.datamodule, cli.model
     paths = export_reference_depth(model.nerf, dm.scene, dm.near, model.hparams.chunk, args.out)
     print(f"wrote {len(paths)} depth maps to {args.out}")
-
-
-if __name__ == "__main__":
-    run_tool(main, "export_reference_depth")

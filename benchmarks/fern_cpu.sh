@@ -2,12 +2,12 @@
 # The CPU quality benchmark: SimpleNeRF (bidirectional and one_way supervision) vs the DS-NeRF baseline on LLFF fern,
 # images_8, 2 views, small networks, the same 5000-iteration budget (configs/cpu/*.yaml; a bidirectional SimpleNeRF
 # run took 68 minutes on the 2-core CPU in 2026-12, partly shared with other jobs). For each run: fit, test (PSNR / SSIM / LPIPS on the 3 test frames) and the
-# depth error at held-out SfM points (tools/heldout_depth_error.py); then one table of all runs.
+# depth error at held-out SfM points (`simplenerf heldout-depth`); then one table of all runs (`simplenerf results`).
 #
-#   tools/benchmark_fern_cpu.sh                       # all three, one after another
-#   tools/benchmark_fern_cpu.sh one_way               # one of: bidirectional one_way dsnerf
-#   OMP_NUM_THREADS=1 tools/benchmark_fern_cpu.sh dsnerf & OMP_NUM_THREADS=1 tools/benchmark_fern_cpu.sh one_way &
-#   tools/benchmark_fern_cpu.sh --step 2000 bidirectional one_way dsnerf
+#   benchmarks/fern_cpu.sh                       # all three, one after another
+#   benchmarks/fern_cpu.sh one_way               # one of: bidirectional one_way dsnerf
+#   OMP_NUM_THREADS=1 benchmarks/fern_cpu.sh dsnerf & OMP_NUM_THREADS=1 benchmarks/fern_cpu.sh one_way &
+#   benchmarks/fern_cpu.sh --step 2000 bidirectional one_way dsnerf
 #       # no training: scores the runs' step-2000 checkpoints into runs/cpu/step002000/fern_<variant>/
 #
 # SCENE (default ../shared/data/nerf_llff_data/fern), PYTHON (default .venv/bin/python), RUNS (default runs/cpu) and
@@ -50,7 +50,7 @@ for variant in "${variants[@]}"; do
   fi
   "$PYTHON" -m simplenerf test "$@" --trainer.logger false --trainer.default_root_dir "$out" \
     --evaluation.output_dir "$out/test" --ckpt_path "$ckpt"
-  "$PYTHON" tools/heldout_depth_error.py --config "$config" --ckpt "$ckpt" --out "$out/heldout_depth.json" \
+  "$PYTHON" -m simplenerf heldout-depth --config "$config" --ckpt "$ckpt" --out "$out/heldout_depth.json" \
     -- "${model_args[@]}"
 done
 
@@ -60,4 +60,4 @@ for variant in bidirectional one_way dsnerf; do
   [ -z "$step" ] || out=$RUNS/step$step/fern_$variant
   [ -f "$out/test/summary.json" ] && table+=("$variant=$out")
 done
-"$PYTHON" tools/compare_runs.py "${table[@]}"
+"$PYTHON" -m simplenerf results --scores full --depth "${table[@]}"

@@ -1,8 +1,8 @@
-"""Scores a tested run again from its saved outputs with the current definitions (logic: simplenerf.evaluation.rescore),
-without rendering, e.g.
+"""Scores a tested run again from its saved outputs with the current definitions, without rendering
+(simplenerf.evaluation.rescore), e.g.
 
-    python tools/rescore_test.py runs/demo
-    python tools/rescore_test.py runs/cpu/fern_simplenerf \
+    simplenerf rescore runs/demo
+    simplenerf rescore runs/cpu/fern_simplenerf \
         --lpips-weights ../shared/data/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz
 
 The ground truth and the train views come from the run's scene, read with the config the test ran with
@@ -14,11 +14,13 @@ mask/<frame>.png. The run's own files are left as they are.
 
 from __future__ import annotations
 
-import argparse
-import sys
+from collections.abc import Sequence
 from pathlib import Path
 
-from simplenerf.cli import run_tool, split_overrides
+from simplenerf.lightning_cli import load_for_tool
+from simplenerf.commands import CommandParser, split_overrides
+from simplenerf.errors import DataError
+from simplenerf.metrics.lpips import LPIPS
 from simplenerf.evaluation.rescore import comparison_table, find_test_folder, rescore_run
 from simplenerf.evaluation.visibility import MIN_VIEWS
 from simplenerf.lightning_cli import load_for_tool
@@ -28,10 +30,10 @@ from simplenerf.metrics.lpips import LPIPS
 RUN_ONLY_KEYS = ("ckpt_path", "verbose", "weights_only")
 
 
-def main() -> None:
-    own, overrides = split_overrides(sys.argv[1:])
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("run", help="a run folder tested by `python -m simplenerf test`, or its test/ folder")
+def main(argv: Sequence[str]) -> None:
+    own, overrides = split_overrides(argv)
+    parser = CommandParser("rescore", __doc__)
+    parser.add_argument("run", help="a run folder tested by `simplenerf test`, or its test/ folder")
     parser.add_argument("--config", action="append", help="config file(s) of the run (default: <test>/config.yaml)")
     parser.add_argument("--lpips-weights", help="LPIPS weights (default: $SIMPLENERF_LPIPS_WEIGHTS, the torch cache)")
     parser.add_argument("--no-lpips", action="store_true", help="leave LPIPS out")
@@ -52,14 +54,10 @@ def main() -> None:
 def _without_run_keys(config: Path, out: Path) -> Path:
     """`config` without the top-level keys of `RUN_ONLY_KEYS`, as `<out>/config.yaml`."""
     if not config.is_file():
-        sys.exit(f"rescore_test: error: {config} not found: give the run's config with --config")
+        raise DataError(f"{config} not found: give the run's config with --config")
     lines = config.read_text().splitlines(keepends=True)
     kept = [line for line in lines if not line.startswith(tuple(f"{key}:" for key in RUN_ONLY_KEYS))]
     out.mkdir(parents=True, exist_ok=True)
     copy = out / "config.yaml"
     copy.write_text("".join(kept))
     return copy
-
-
-if __name__ == "__main__":
-    run_tool(main, "rescore_test")

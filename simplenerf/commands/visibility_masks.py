@@ -1,31 +1,32 @@
-"""Visibility masks of a scene's test frames (SPEC 7, see simplenerf.evaluation.visibility), e.g.
+"""Visibility masks of a scene's test frames: the pixels the masked scores evaluate, those seen by at least
+`--min-views` train views (paper Sec. 5.1 and the supplement; simplenerf.evaluation.visibility), e.g.
 
-    python tools/make_visibility_masks.py --config configs/llff.yaml \
+    simplenerf visibility-masks --config configs/llff.yaml \
         -- --data.init_args.scene_dir data/nerf_llff_data/fern --data.init_args.reference_depth_dir DIR
 
 Everything after `--` is passed to the CLI as overrides; the data module's split (n_views) decides the train views.
 Writes `<out>/<frame>.png` (white = visible, i.e. evaluated by the masked scores) and `<out>/<frame>.npy` (bool), by
 default under `<trainer.default_root_dir>/visibility`, and prints the visible fraction of each frame. The scene needs
 reference depth: the synthetic scene has it; for real scenes train a dense NeRF (configs/dense/*.yaml) and export its
-depth with tools/export_reference_depth.py. `python -m simplenerf test` computes the same masks itself.
+depth with `simplenerf export-depth`. `simplenerf test` computes the same masks itself.
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
+from collections.abc import Sequence
 from pathlib import Path
 
-from simplenerf.cli import run_tool, split_overrides
+from simplenerf.lightning_cli import load_for_tool
+from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.evaluator import export_visibility_masks
 from simplenerf.evaluation.visibility import MIN_VIEWS
 from simplenerf.lightning_cli import load_for_tool
 
 
-def main() -> None:
-    own, overrides = split_overrides(sys.argv[1:])
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", required=True)
+def main(argv: Sequence[str]) -> None:
+    own, overrides = split_overrides(argv)
+    parser = CommandParser("visibility-masks", __doc__)
+    parser.add_argument("--config", required=True, help="config file (its data module and split)")
     parser.add_argument("--out", help="output folder (default: <trainer.default_root_dir>/visibility)")
     parser.add_argument("--min-views", type=int, default=MIN_VIEWS, help="train views that must see a pixel")
     args = parser.parse_args(own)
@@ -36,7 +37,3 @@ def main() -> None:
     print(f"visibility masks of {len(fractions)} test frames (train frames {dm.scene.split.train}) in {out}:")
     for name, fraction in fractions.items():
         print(f"  {name}: {100 * fraction:.1f}% visible")
-
-
-if __name__ == "__main__":
-    run_tool(main, "simplenerf")

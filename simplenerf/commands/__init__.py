@@ -1,0 +1,108 @@
+"""`simplenerf <verb> ...` (also `python -m simplenerf <verb> ...`): every command of the project, one registry.
+
+`VERBS` maps a verb to the function that runs it ("module:function", or "module" for its `main`; called with the
+arguments after the verb, the Lightning verbs with the verb too, LightningCLI's subcommand) and the line `simplenerf
+--help` shows. A verb's module parses its arguments with a `CommandParser` whose description (the module docstring)
+has an example. Registering a verb is one line here, e.g. `"view": Verb("simplenerf.commands.view", "...")`; the
+module is imported only when its verb runs, so `simplenerf --help` and the verbs that need no torch start at once.
+Every verb runs under `simplenerf.console.run_tool`: bad input ends with one `simplenerf: error:` line and exit
+status 2, a signal with one line and 128 + its number.
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import importlib
+import sys
+import textwrap
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NoReturn
+
+from simplenerf.console import PROG, run_tool
+
+
+@dataclass(frozen=True)
+class Verb:
+    target: str  # "module:function" or "module" (its main): the function taking the verb's arguments (list[str])
+    summary: str  # one line of `simplenerf --help`
+
+
+LIGHTNING_VERBS = ("fit", "validate", "test", "predict")  # LightningCLI's subcommands (simplenerf.lightning_cli)
+
+VERBS: dict[str, Verb] = {
+    "fit": Verb("simplenerf.lightning_cli:lightning_main", "train a run from a config (resume it with --ckpt_path last)"),
+    "validate": Verb("simplenerf.lightning_cli:lightning_main", "score a run's validation view"),
+    "test": Verb("simplenerf.lightning_cli:lightning_main", "render and score every test frame into <run>/test"),
+    "predict": Verb("simplenerf.lightning_cli:lightning_main", "render the test frames"),
+    "sweep": Verb("simplenerf.commands.sweep", "scenes x views x models x seeds as jobs (SLURM, local), then a table"),
+    "process-data": Verb("simplenerf.commands.process_data", "own photos -> a scene folder (SfM with pycolmap)"),
+    "render-video": Verb("simplenerf.commands.render_video", "video of a trained run along the camera path"),
+    "export-geometry": Verb("simplenerf.commands.export_geometry", "a trained run's depth maps and point cloud"),
+    "export-depth": Verb("simplenerf.commands.export_depth", "a dense NeRF's depth of every frame (reference depth)"),
+    "results": Verb("simplenerf.commands.results", "tested runs side by side, over seeds, beside the paper's rows"),
+    "rescore": Verb("simplenerf.commands.rescore", "score a tested run again from its saved renders"),
+    "visibility-masks": Verb("simplenerf.commands.visibility_masks", "a scene's test-frame visibility masks"),
+    "run-history": Verb("simplenerf.commands.run_history", "what a run logged, read back from its W&B files (CSV)"),
+    "sparse-depth": Verb("simplenerf.commands.sparse_depth", "compute and cache a config's SfM sparse depth"),
+    "heldout-depth": Verb("simplenerf.commands.heldout_depth", "a trained run's depth error at held-out SfM points"),
+    "synthetic": Verb("simplenerf.commands.synthetic", "write the built-in synthetic scene"),
+    "benchmark": Verb("simplenerf.commands.benchmark", "seconds per training step and peak memory of a config"),
+}
+
+DESCRIPTION = (
+    "SimpleNeRF (SIGGRAPH Asia 2023): Neural Radiance Fields from 2 to 4 photos, regularised by simpler augmented "
+    "models. Start from a config in configs/, e.g. `simplenerf fit --config configs/demo.yaml`."
+)
+
+
+class CommandParser(argparse.ArgumentParser):
+    """A verb's parser (`prog` "simplenerf <verb>"): `--help` shows its module's docstring (a description and an
+    example); a bad option ends with one `simplenerf: error:` line and a hint, exit status 2, as for the Lightning
+    verbs (`simplenerf.console.parser_error_line`)."""
+
+    def __init__(self, verb: str, doc: str | None, prog: str | None = None) -> None:
+        super().__init__(prog=prog or f"{PROG} {verb}", description=doc,
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"{PROG}: error: {message}\nhint: `{self.prog} --help` lists every option\n")
+        sys.exit(2)
+
+
+def split_overrides(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """A verb's own arguments and, after `--`, the overrides it passes to the CLI (those of `simplenerf fit`)."""
+    argv = list(argv)
+    if "--" not in argv:
+        return argv, []
+    i = argv.index("--")
+    return argv[:i], argv[i + 1 :]
+
+
+def overview() -> str:
+    """`simplenerf --help`: every verb with its line."""
+    width = max(map(len, VERBS))
+    lines = [f"usage: {PROG} <command> [options]    (`{PROG} <command> --help`: its options and an example)", "",
+             textwrap.fill(DESCRIPTION, 100), "", "commands:"]
+    lines += [f"  {name:<{width}}  {verb.summary}" for name, verb in VERBS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """The `simplenerf` command: runs the verb `argv[0]` with the rest (None: sys.argv[1:])."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(overview())
+        return
+    name = "fit" if argv[0].startswith("-") else argv[0]  # LightningCLI's options before its subcommand: `-c FILE fit`
+    if name not in VERBS:
+        close = difflib.get_close_matches(name, list(VERBS), n=1)
+        guess = f"; did you mean {close[0]}?" if close else ""
+        sys.stderr.write(f"{PROG}: error: unknown command {name!r}{guess} (`{PROG} --help` lists the commands)\n")
+        sys.exit(2)
+    # Imported before run_tool quietens the libraries, so that their log handlers exist to be filtered.
+    module, _, function = VERBS[name].target.partition(":")
+    run = getattr(importlib.import_module(module), function or "main")
+    args = argv if name in LIGHTNING_VERBS else argv[1:]
+    run_tool(lambda: run(args), PROG)

@@ -1,0 +1,115 @@
+"""Seconds per training step and peak memory of a config on this machine: times N training iterations after W
+warm-up iterations and prints ONE JSON line (simplenerf.speed), e.g.
+
+    simplenerf benchmark --config configs/llff.yaml --steps 3 --warmup 2 --rays 256 --precision 32-true \
+        -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.sparse_rays_per_batch 256
+
+Everything after `--` goes to the CLI as overrides (`simplenerf fit` arguments). `--tf32` allows TF32 matrix products
+in fp32 (CUDA). The JSON holds s/it (median, min, max, all), rays/s, field evaluations/s, peak RSS and peak CUDA
+memory, CPU user/system time and page faults per iteration, and the losses computed. The config's warm-up schedule
+is not applied: every loss is computed at its configured weight (the cost of a step after the warm-up). Run
+`simplenerf sparse-depth` with the same arguments first, so that SfM is not in the measured process. One measurement
+per process: peak memory is per process. More measurements (rendering, a profile, the release side by side):
+benchmarks/ in the repository.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+from simplenerf.commands import CommandParser, split_overrides
+from simplenerf.speed import set_tf32, time_training
+
+
+def measurement_parser(doc: str | None, prog: str | None = None) -> CommandParser:
+    """The options every measurement shares: configs, precision, TF32, accelerator, a label. `prog`: a script of
+    benchmarks/ (default: `simplenerf benchmark`)."""
+    parser = CommandParser("benchmark", doc, prog)
+    parser.add_argument("--config", action="append", required=True, help="a config file (repeat to stack)")
+    parser.add_argument("--precision", default="32-true", help="Lightning precision: 32-true, bf16-mixed, 16-mixed")
+    parser.add_argument("--tf32", action="store_true", help="TF32 matrix products for fp32 (CUDA, Ampere and newer)")
+    parser.add_argument("--accelerator", default="auto", help="Lightning accelerator (auto, cpu, cuda)")
+    parser.add_argument("--label", default=None, help="free text copied into the JSON (e.g. a variant name)")
+    return parser
+
+
+def build(args: argparse.Namespace, overrides: list[str]):
+    """The CLI (model, data module) of the parsed measurement `args` and the CLI `overrides`, seed 0 first (a run's
+    rays are reproducible; an override still wins), without a logger."""
+    from simplenerf.lightning_cli import make_cli
+
+    set_tf32(args.tf32)
+    configs = [a for c in args.config for a in ("--config", c)]
+    return make_cli(["--seed_everything", "0", *configs, "--trainer.logger", "false", *overrides], run=False)
+
+
+def record_header(kind: str, args: argparse.Namespace, overrides: list[str]) -> dict:
+    """What every JSON line starts with: the measurement, its settings, the machine's threads, torch, the commit."""
+    from simplenerf.evaluation.evaluator import git_commit
+
+    return {
+        "benchmark": kind,
+        "label": args.label,
+        "config": args.config if len(args.config) > 1 else args.config[0],
+        "overrides": overrides,
+        "precision": args.precision,
+        "tf32": args.tf32,
+        "threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+        "commit": git_commit(),
+    }
+
+
+def emit(record: dict) -> None:
+    """One JSON line on stdout (everything else a run prints goes to stderr)."""
+    print(json.dumps(record), flush=True)
+
+
+def training_args(argv: Sequence[str], doc: str | None, extra: dict[str, tuple[int, str]], prog: str | None = None):
+    """The arguments of a training measurement (`--warmup`, `--rays` and `extra`: name -> (default, help)), its CLI
+    overrides and the CLI they build."""
+    own, overrides = split_overrides(argv)
+    parser = measurement_parser(doc, prog)
+    for name, (default, text) in {"warmup": (2, "untimed iterations first"), **extra}.items():
+        parser.add_argument(f"--{name}", type=int, default=default, help=text)
+    parser.add_argument("--rays", type=int, help="random rays per iteration (overrides the config's)")
+    args = parser.parse_args(own)
+    if args.rays:
+        overrides = [*overrides, "--data.init_args.rays_per_batch", str(args.rays)]
+    with stdout_to_stderr():
+        cli = build(args, overrides)
+        warn_zero_weights(cli.model)
+    return args, overrides, cli
+
+
+def main(argv: Sequence[str]) -> dict:
+    args, overrides, cli = training_args(argv, __doc__, {"steps": (3, "timed iterations")})
+    with stdout_to_stderr():
+        result = time_training(cli.model, cli.datamodule, args.steps, args.warmup, args.precision, args.accelerator)
+    record = {**record_header("train_step", args, overrides), "steps": args.steps, "warmup": args.warmup, **result}
+    emit(record)
+    return record
+
+
+def warn_zero_weights(model: nn.Module) -> None:
+    """Says on stderr which losses are off (weight 0): they are skipped, so the step is cheaper than the paper's."""
+    zero = sorted(name for name, w in getattr(model, "loss_weights", {}).items() if not w)
+    if zero:
+        print(f"benchmark: note: losses with weight 0 are skipped: {zero}", file=sys.stderr)
+
+
+class stdout_to_stderr:
+    """Lightning and the data module print progress to stdout; keep stdout for the one JSON line."""
+
+    def __enter__(self) -> None:
+        self._saved = sys.stdout
+        sys.stdout = sys.stderr
+
+    def __exit__(self, *exc) -> None:
+        sys.stdout = self._saved

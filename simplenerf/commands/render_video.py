@@ -1,0 +1,52 @@
+"""Video of a trained run along the scene's camera path: [RGB | depth] side by side (simplenerf.viz.video), e.g.
+
+    simplenerf render-video --config configs/llff.yaml --ckpt runs/llff/checkpoints/last.ckpt \
+        -- --data.init_args.scene_dir data/nerf_llff_data/fern
+
+Paths: `spiral` (LLFF: 120 frames, 2 rotations around the train views) or `recorded` (RealEstate-10K: the clip's
+own cameras). Default: the scene's `camera_path` (LLFF: `spiral`, RealEstate-10K: `recorded`). Everything
+after `--` is passed to the CLI as overrides. Writes <trainer.default_root_dir>/video_<path>.mp4 unless --out.
+The depth colour range used is printed; give it to another model's video with --depth-range to compare the two.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+
+from simplenerf.lightning_cli import load_for_tool
+from simplenerf.commands import CommandParser, split_overrides
+from simplenerf.viz.video import render_scene_video
+
+
+def parse_args(argv: Sequence[str]) -> argparse.Namespace:
+    parser = CommandParser("render-video", __doc__)
+    parser.add_argument("--config", required=True, action="append", help="config file(s) of the run, in order")
+    parser.add_argument("--ckpt", required=True, help="checkpoint of the trained model")
+    parser.add_argument("--path", choices=["spiral", "recorded"], help="camera path (default: see above)")
+    parser.add_argument("--frames", type=int, default=120, help="frames of the spiral")
+    parser.add_argument("--rotations", type=float, default=2, help="turns of the spiral")
+    parser.add_argument("--factor-down", type=int, default=1, help="render at 1/N of the data's resolution")
+    parser.add_argument("--fps", type=float, default=30, help="frames per second")
+    parser.add_argument("--depth-range", type=float, nargs=2, metavar=("CLOSEST", "FARTHEST"),
+                        help="depths (scene units) at the ends of the colour map; default: from the first frames")
+    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu", help="torch device")
+    parser.add_argument("--out", help="the .mp4 to write")
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str]) -> None:
+    own, overrides = split_overrides(argv)
+    args = parse_args(own)
+    cli = load_for_tool(args.config, overrides, ckpt=args.ckpt, device=args.device)
+    kind = args.path or cli.datamodule.scene.camera_path
+    out = args.out or Path(cli.trainer.default_root_dir) / f"video_{kind}.mp4"
+    written, n, width, height, kind, (closest, farthest) = render_scene_video(
+        cli.model, cli.datamodule, out, kind, args.frames, args.rotations, args.factor_down, args.fps,
+        tuple(args.depth_range) if args.depth_range else None,
+    )
+    print(f"video: {written} ({n} frames of {2 * width}x{height}, {kind}; "
+          f"--depth-range {closest:.4g} {farthest:.4g})")

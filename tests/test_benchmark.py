@@ -96,11 +96,8 @@ def test_side_by_side_table_pools_runs_and_leaves_out_short_batches(tmp_path):
 
 
 def _tiny(tmp_path) -> list[str]:
-    """The end-to-end tests' tiny demo run, as a benchmark's arguments: its configs, then `--` and its overrides (less
-    the logger's, since benchmarks run without one)."""
+    """The end-to-end tests' tiny demo run, as a benchmark's arguments: its configs, then `--` and its overrides."""
     args = run_args(tmp_path)
-    i = args.index("--trainer.logger.init_args.save_dir")
-    del args[i : i + 2]
     configs = [a for i, a in enumerate(args) if a == "--config" or (i and args[i - 1] == "--config")]
     overrides = [a for i, a in enumerate(args) if not (a == "--config" or (i and args[i - 1] == "--config"))]
     return [*configs, "--", *overrides]

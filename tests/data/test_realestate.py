@@ -119,6 +119,7 @@ def write_clip(root: Path, n_frames: int = 52, seed: int = 0) -> tuple[Path, lis
 def test_clip_loads_in_our_conventions(tmp_path):
     scene_dir, poses = write_clip(tmp_path)
     scene = load_realestate_scene(scene_dir, n_views=3, clip_start=1)
+    assert scene.source == scene_dir and scene.camera_path == "recorded"  # a clip's video follows its own cameras
     views = scene.views
     assert views.images.shape == (50, HEIGHT, WIDTH, 3)
     # Frame k of the clip is line 1 + k of the camera file (clip_start=1), with its own image.

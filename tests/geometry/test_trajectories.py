@@ -98,8 +98,10 @@ def test_recorded_trajectory_is_the_frames_in_order():
 def test_scene_trajectory_spirals_around_all_frames(synthetic_scene):
     """As the authors' release: the spiral is fitted to every frame of the scene, not to the 2 train views."""
     scene = load_llff_scene(synthetic_scene, factor=1, n_views=2)
+    assert scene.source == synthetic_scene and scene.camera_path == "spiral"
     train = scene.split.train
     spiral = scene.trajectory("spiral", n_frames=12)
+    assert torch.equal(scene.trajectory(n_frames=12), spiral)  # None: the scene's own camera_path
     assert torch.equal(spiral, llff_spiral(scene.views.c2w, scene.bounds, 12))
     assert not torch.allclose(spiral, llff_spiral(scene.views.c2w[train], scene.bounds[train], 12))
     # Centred on the average pose of all frames (not the origin, which is the average train pose), looking along

@@ -396,6 +396,11 @@ def main(args: list[str] | None = None) -> None:
 
         run_tool(lambda: sweep(argv[1:]), PROG)
         return
+    if argv[:1] == ["view"]:  # the web viewer of a run (simplenerf.viewer); not a Lightning command
+        from simplenerf.viewer.command import main as view
+
+        run_tool(lambda: view(argv[1:]), PROG)
+        return
     if argv[:1] == ["process-data"]:  # photos -> an LLFF-layout scene (simplenerf.data.photos); not a Lightning command
         from simplenerf.data.photos import main as process_data
 

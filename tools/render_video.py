@@ -4,7 +4,8 @@
         -- --data.init_args.scene_dir data/nerf_llff_data/fern
 
 Paths: `spiral` (LLFF: 120 frames, 2 rotations around the train views) or `recorded` (RealEstate-10K: the clip's
-own cameras). Default: the data module's `video_trajectory` attribute if it has one, else `spiral`. Everything
+own cameras), or `--trajectory FILE`, a camera path exported from `simplenerf view` (its poses, size and fps).
+Default: the data module's `video_trajectory` attribute if it has one, else `spiral`. Everything
 after `--` is passed to the CLI as overrides. Writes <trainer.default_root_dir>/video_<path>.mp4 unless --out.
 The depth colour range used is printed; give it to another model's video with --depth-range to compare the two.
 """
@@ -18,7 +19,8 @@ from pathlib import Path
 import torch
 
 from simplenerf.cli import load_for_tool, run_tool, split_overrides
-from simplenerf.viz.video import render_scene_video
+from simplenerf.viz.trajectories import read_camera_path
+from simplenerf.viz.video import downscale_intrinsics, render_scene_video, render_video
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -26,6 +28,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--config", required=True, action="append", help="config file(s) of the run, in order")
     parser.add_argument("--ckpt", required=True, help="checkpoint of the trained model")
     parser.add_argument("--path", choices=["spiral", "recorded"], help="camera path (default: see above)")
+    parser.add_argument("--trajectory", help="a camera path file exported from the viewer (instead of --path)")
     parser.add_argument("--frames", type=int, default=120, help="frames of the spiral")
     parser.add_argument("--rotations", type=float, default=2, help="turns of the spiral")
     parser.add_argument("--factor-down", type=int, default=1, help="render at 1/N of the data's resolution")
@@ -40,7 +43,19 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 def main() -> None:
     own, overrides = split_overrides(sys.argv[1:])
     args = parse_args(own)
+    if args.trajectory:
+        path = read_camera_path(args.trajectory)  # bad file: one line, before the model loads
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt, device=args.device)
+    if args.trajectory:
+        intrinsics, height, width = downscale_intrinsics(path.intrinsics, path.height, path.width, args.factor_down)
+        out = args.out or Path(cli.trainer.default_root_dir) / f"video_{Path(args.trajectory).stem}.mp4"
+        depth_range = tuple(args.depth_range) if args.depth_range else None
+        written, (closest, farthest) = render_video(cli.model.nerf, path.c2w, intrinsics, height, width,
+                                                    cli.datamodule.near, cli.model.hparams.chunk, out, path.fps,
+                                                    depth_range)
+        print(f"video: {written} ({len(path.c2w)} frames of {2 * width}x{height}, {args.trajectory}; "
+              f"--depth-range {closest:.4g} {farthest:.4g})")
+        return
     kind = args.path or getattr(cli.datamodule, "video_trajectory", "spiral")
     out = args.out or Path(cli.trainer.default_root_dir) / f"video_{kind}.mp4"
     written, n, width, height, kind, (closest, farthest) = render_scene_video(

@@ -122,6 +122,9 @@ class SimpleNeRFCLI(LightningCLI):
                 help="Start afresh in a run folder that already has checkpoints, deleting them. Without it, fit "
                 "refuses such a folder unless it resumes with --ckpt_path.",
             )
+            parser.add_argument("--viewer", type=bool, default=False,
+                                help="Open the web viewer of the run while it trains (docs/viewer.md).")
+            parser.add_argument("--viewer_port", type=int, default=8080, help="The viewer's port (0: any free one).")
         if subcommand in ("fit", "test"):
             parser.add_argument(
                 "--allow_changes", type=list[str], default=[],
@@ -149,6 +152,10 @@ class SimpleNeRFCLI(LightningCLI):
         return list(dict.fromkeys(folders))
 
     def _run_subcommand(self, subcommand: str) -> None:
+        if subcommand == "fit" and self.config_init[subcommand].get("viewer"):  # a callback like the others
+            from simplenerf.viewer.callback import TrainingViewer
+
+            self.trainer.callbacks.append(TrainingViewer(port=self.config_init[subcommand]["viewer_port"]))
         # Bad input (a missing scene, missing LPIPS weights, a checkpoint that does not fit) stops here, before
         # loggers or outputs create anything.
         n_views = getattr(self.datamodule, "n_views", None)
@@ -254,7 +261,8 @@ def trainer_defaults() -> dict:
 
 
 # The arguments of a subcommand itself, not of the model, data or trainer: a fit saves them in <run>/config.yaml.
-SUBCOMMAND_KEYS = ("ckpt_path", "weights_only", "overwrite", "allow_changes")
+SUBCOMMAND_KEYS = ("ckpt_path", "weights_only", "overwrite", "allow_changes", "viewer", "viewer_port")
+FIT_ONLY_KEYS = ("overwrite", "viewer", "viewer_port")
 
 
 def without_subcommand_keys(args: list[str], drop: tuple[str, ...]) -> list[str]:
@@ -323,7 +331,7 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
     if not run:  # a tool: none of a subcommand's arguments apply
         drop = SUBCOMMAND_KEYS
     else:
-        drop = {"fit": (), "test": ("overwrite",)}.get(given[0] if given else "", ("overwrite", "allow_changes"))
+        drop = {"fit": (), "test": FIT_ONLY_KEYS}.get(given[0] if given else "", (*FIT_ONLY_KEYS, "allow_changes"))
     if drop:  # (otherwise args stay as given: Lightning warns when args and sys.argv both hold arguments)
         readable = without_subcommand_keys(given, drop)
         args = readable if readable != given else args

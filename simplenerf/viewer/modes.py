@@ -154,6 +154,8 @@ def render_picture(
     if len(rays) != n or valid.shape != (n,):
         raise ValueError(f"expected {n} rays and flags for {width}x{height}, got {len(rays)}, {tuple(valid.shape)}")
     index = valid.nonzero()[:, 0]
+    if len(index) == 0:  # the camera looks away from the scene
+        return Picture(rgb=np.zeros((height, width, 3), np.uint8), depth=np.zeros((height, width), np.float32))
     out = render_chunks(model, rays[index], mode, stop)
     full = {}
     for key, value in out.items():

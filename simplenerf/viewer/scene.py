@@ -57,7 +57,8 @@ def add_cameras(server, views: Views, indices: list[int], role: str, colour: tup
         wxyz, position = viser_pose(views.c2w[i])
         handles.append(server.scene.add_camera_frustum(
             f"/cameras/{role}/{views.names[i]}", fov=fov, aspect=views.width / views.height, scale=scale,
-            color=colour, image=thumbnail(views.images[i]), wxyz=wxyz, position=position,
+            thickness=2.0, thickness_units="screen", color=colour, image=thumbnail(views.images[i]), wxyz=wxyz,
+            position=position,
         ))
     return handles
 

@@ -110,10 +110,14 @@ class Viewer:
         add_cameras(server, scene.views, scene.split.test, "test", TEST_COLOUR, scale)
         if sparse is not None and len(sparse):
             add_points(server, sfm_points(sparse, self.train), size=0.15 * scale)
-        first = self.train.c2w[0].detach().cpu().double().numpy()
-        server.initial_camera.position = first[:, 3]
-        server.initial_camera.look_at = look_at_point(first, float(np.median(scene.bounds[:, 0])))
-        server.initial_camera.up = first[:, 1]
+        # The first view: the train cameras' mean pose, moved back so that their frustums are in sight.
+        mean = self.train.c2w.detach().cpu().double().mean(0).numpy()
+        axes, upper = np.linalg.qr(mean[:, :3])  # the nearest rotation's columns, up to sign
+        axes *= np.sign(np.diag(upper))
+        start = np.concatenate([axes, (mean[:, 3] + 3 * scale * axes[:, 2])[:, None]], axis=1)
+        server.initial_camera.position = start[:, 3]
+        server.initial_camera.look_at = look_at_point(start, float(np.median(scene.bounds[:, 0])))
+        server.initial_camera.up = start[:, 1]
         server.initial_camera.fov = vertical_fov(self.train.intrinsics[0], self.train.height)
 
     def _build_gui(self, max_side: int) -> None:

@@ -19,6 +19,7 @@ import torch
 
 from simplenerf.checks import checkpoints_newest_first
 from simplenerf.cli import load_for_tool, split_overrides
+from simplenerf.console import HeldLogs
 from simplenerf.errors import DataError, RunFolderError
 from simplenerf.viewer.server import Viewer, check_port
 
@@ -61,7 +62,11 @@ def open_viewer(argv: list[str]) -> Viewer:
     args = parse_args(own)
     configs, checkpoint, folder = resolve_run(Path(args.run), args.config)
     check_port(args.host, args.port)  # before the model loads: a taken port says so at once
-    cli = load_for_tool(configs, overrides, stage="test", ckpt=str(checkpoint), device=args.device)
+    held = HeldLogs()  # Lightning's lines (devices, seed) are not the viewer's: a bad checkpoint's error stands alone
+    try:
+        cli = load_for_tool(configs, overrides, stage="test", ckpt=str(checkpoint), device=args.device)
+    finally:
+        held.release(emit=False)
     model, data = cli.model, cli.datamodule
     if model.needs_masks:  # what `SimpleNeRF.on_fit_start` sets for training; `reliability_maps` reads it
         model.train_views = data.train_views.to(args.device)

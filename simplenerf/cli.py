@@ -4,7 +4,7 @@ Defaults every run gets: W&B logging (offline without credentials), progress (a 
 every N steps in a log file: `--progress.*`), rays/s, learning-rate logging, checkpoints under
 `<trainer.default_root_dir>/checkpoints` (resume with `--ckpt_path last`), a stop on a NaN/inf loss, the validation
 renders (`--val_renders.*`), the evaluation callback (`--evaluation.*`) that writes test metrics and renders, and an
-optional video at the end of training (`--video.frames N`).
+optional video at the end of training (`--video.frames N`); `--viewer true`: the web viewer (`simplenerf.viewer`).
 
 A run is trusted before it starts: inputs (data, LPIPS weights, the checkpoint and whether it fits the model, the
 run folder; `simplenerf.checks`) are checked first and a problem stops the command with one `simplenerf: error:`

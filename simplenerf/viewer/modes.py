@@ -119,11 +119,13 @@ def render_chunks(model, rays: RayBundle, mode: RenderMode, stop: Callable[[], b
         if stop():
             raise RenderCancelled
         part = rays[start : start + chunk]
-        out = model.nerf.render_rays_chunked(part, chunk)
-        if mode.kind == "augmented_depth":
+        if mode.kind == "augmented_depth":  # one pass of the main NeRF, whose samples the augmentation reuses
             aug = next(a for a in model.augmentations if a.name == mode.name)
-            main = model.nerf(part, randomized=False, color=False)
-            out["augmented_depth"] = aug.render(model.nerf, main, False).depth
+            main = model.nerf(part, randomized=False)
+            out = {"rgb": main.fine.rgb, "depth": main.fine.depth, "accumulation": main.fine.accumulation,
+                   "coarse_depth": main.coarse.depth, "augmented_depth": aug.render(model.nerf, main, False).depth}
+        else:
+            out = model.nerf.render_rays_chunked(part, chunk)
         for key, value in out.items():
             parts.setdefault(key, []).append(value)
     return {key: torch.cat(values) for key, values in parts.items()}

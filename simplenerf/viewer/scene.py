@@ -71,6 +71,6 @@ def add_points(server, points: ScenePoints, size: float) -> None:
 
 
 def frustum_scale(bounds: np.ndarray) -> float:
-    """Frustum size (scene units) for a scene with near/far bounds [N, 2]: a fifth of the nearest depth, so the
-    frustums stay in front of the content."""
-    return 0.2 * float(np.min(bounds[:, 0]))
+    """Frustum size (scene units) for a scene with near/far bounds [N, 2]: a twentieth of the nearest depth, so the
+    frustums stay well in front of the content."""
+    return 0.05 * float(np.min(bounds[:, 0]))

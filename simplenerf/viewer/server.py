@@ -16,11 +16,16 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import viser
+
+from simplenerf.errors import SimpleNeRFError
+
+try:
+    import viser
+except ModuleNotFoundError:  # an install without the extra: one line, not a traceback
+    raise SimpleNeRFError("the viewer needs viser: pip install -e '.[viewer]' (viser==1.1.1)") from None
 
 from simplenerf.data.datasets import SparseDepthPool
 from simplenerf.data.scene import Scene
-from simplenerf.errors import SimpleNeRFError
 from simplenerf.viewer.camera import (
     ViewerCamera,
     camera_from_viser,
@@ -109,12 +114,12 @@ class Viewer:
         add_cameras(server, scene.views, scene.split.train, "train", TRAIN_COLOUR, scale)
         add_cameras(server, scene.views, scene.split.test, "test", TEST_COLOUR, scale)
         if sparse is not None and len(sparse):
-            add_points(server, sfm_points(sparse, self.train), size=0.15 * scale)
+            add_points(server, sfm_points(sparse, self.train), size=0.1 * scale)
         # The first view: the train cameras' mean pose, moved back so that their frustums are in sight.
         mean = self.train.c2w.detach().cpu().double().mean(0).numpy()
         axes, upper = np.linalg.qr(mean[:, :3])  # the nearest rotation's columns, up to sign
         axes *= np.sign(np.diag(upper))
-        start = np.concatenate([axes, (mean[:, 3] + 3 * scale * axes[:, 2])[:, None]], axis=1)
+        start = np.concatenate([axes, (mean[:, 3] + 10 * scale * axes[:, 2])[:, None]], axis=1)
         server.initial_camera.position = start[:, 3]
         server.initial_camera.look_at = look_at_point(start, float(np.median(scene.bounds[:, 0])))
         server.initial_camera.up = start[:, 1]

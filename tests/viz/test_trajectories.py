@@ -1,3 +1,4 @@
+import json
 import math
 
 import numpy as np
@@ -6,8 +7,17 @@ import torch
 
 from simplenerf.data.llff import average_pose, load_llff_scene, subset
 from simplenerf.data.scene import Scene, Split
+from simplenerf.errors import DataError
 from simplenerf.geometry.views import Views
-from simplenerf.viz.trajectories import llff_spiral, recorded_trajectory, scene_trajectory, spiral_focus_depth
+from simplenerf.viz.trajectories import (
+    CameraPath,
+    llff_spiral,
+    read_camera_path,
+    recorded_trajectory,
+    scene_trajectory,
+    spiral_focus_depth,
+    write_camera_path,
+)
 
 # Four axis-aligned cameras (identity rotation) around the origin: the average pose is the identity.
 POSITIONS = torch.tensor([[-0.2, 0.1, 0.02], [0.2, -0.1, -0.02], [0.1, 0.05, 0.04], [-0.1, -0.05, -0.04]],
@@ -121,3 +131,22 @@ def test_a_scene_of_train_views_only_spirals_around_them(synthetic_scene):
                 bounds=scene.bounds[train])
     assert torch.equal(scene_trajectory(own, "spiral", n_frames=12),
                        llff_spiral(scene.views.c2w[train], scene.bounds[train], 12))
+
+
+def test_camera_path_file_round_trip_and_bad_files(tmp_path):
+    c2w = torch.arange(24, dtype=torch.float64).reshape(2, 3, 4) / 7
+    out = write_camera_path(tmp_path / "a" / "path.json", CameraPath(c2w, 64, 48, math.radians(60.0), 24.0))
+    back = read_camera_path(out)
+    assert torch.equal(back.c2w, c2w) and (back.width, back.height, back.fps) == (64, 48, 24.0)
+    assert back.fov_y == pytest.approx(math.radians(60.0))
+    focal = 24.0 / math.tan(math.radians(30.0))
+    assert torch.allclose(back.intrinsics, torch.tensor([[focal, 0, 32.0], [0, focal, 24.0], [0, 0, 1]],
+                                                        dtype=torch.float64))
+    (tmp_path / "other.json").write_text(json.dumps({"frames": []}))
+    with pytest.raises(DataError, match=r"other.json is not a camera path \(export one from `simplenerf view`\)"):
+        read_camera_path(tmp_path / "other.json")
+    data = json.loads(out.read_text())
+    data["c2w"] = [[1.0, 2.0]]
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    with pytest.raises(DataError, match=r"expected c2w \[N >= 1, 3, 4\].*got \(1, 2\)"):
+        read_camera_path(tmp_path / "bad.json")

@@ -6,7 +6,8 @@ This package's cameras are c2w [3, 4] in OpenGL axes (right, up, back; `simplene
 with its y and z columns negated. A render of W x H pixels has square pixels, fy = fx = (H / 2) / tan(fov / 2) and
 the principal point at the image centre (W / 2, H / 2), the convention of the data (pixel (u, v) without +0.5).
 
-The NeRF samples in forward-facing NDC (LLFF): a ray that does not point into the scene (world direction with
+The NeRF samples in forward-facing NDC (LLFF), defined by the train views' camera: the viewer's rays are put in that
+NDC whatever the viewer's own field of view and size. A ray that does not point into the scene (world direction with
 d_z >= 0) has no NDC parametrisation, so it is marked invalid and drawn as background.
 """
 
@@ -19,8 +20,7 @@ import numpy as np
 import torch
 import viser.transforms as vtf
 
-from simplenerf.geometry.rays import RayBundle
-from simplenerf.viz.video import frame_rays
+from simplenerf.geometry.rays import RayBundle, ndc_rays, pixel_grid, pixel_rays
 
 _FLIP_YZ = np.diag([1.0, -1.0, -1.0])  # OpenCV camera axes <-> OpenGL camera axes
 
@@ -81,10 +81,14 @@ def look_at_point(c2w: np.ndarray, distance: float) -> np.ndarray:
 
 
 def viewer_rays(
-    camera: ViewerCamera, width: int, height: int, near: float, like: torch.Tensor
+    camera: ViewerCamera, width: int, height: int, near: float, ndc: tuple[torch.Tensor, int, int], like: torch.Tensor
 ) -> tuple[RayBundle, torch.Tensor]:
     """Rays of every pixel of a width x height render from `camera`, row-major, in the dtype and on the device of
     `like` (a model parameter).
+
+    The NDC the model samples in is the data's, fixed by the train views' camera: `ndc` = (intrinsics [3, 3], width,
+    height) of a train view. Built with the viewer's own camera instead it would be another space (NDC x and y scale
+    with fx / W and fy / H), and the render a stretched, zoomed scene.
 
     Returns:
         rays [H * W] (world and NDC), valid [H * W] bool: the rays that point into the scene (d_z < 0), which alone
@@ -92,9 +96,12 @@ def viewer_rays(
     """
     c2w = torch.as_tensor(camera.c2w, dtype=like.dtype, device=like.device)
     intrinsics = torch.as_tensor(camera.intrinsics(width, height), dtype=like.dtype, device=like.device)
-    rays = frame_rays(c2w, intrinsics, height, width, near)
-    valid = rays.directions[:, 2] < -1e-6
-    return rays, valid
+    origins, directions = pixel_rays(intrinsics[None], c2w[None], pixel_grid(height, width, like.device))
+    ndc_intrinsics, ndc_width, ndc_height = ndc
+    ndc_o, ndc_d = ndc_rays(origins, directions, ndc_intrinsics.to(like.device, like.dtype)[None], ndc_width,
+                            ndc_height, near)
+    valid = directions[:, 2] < -1e-6
+    return RayBundle(origins, directions, ndc_o, ndc_d), valid
 
 
 def nearest_camera(camera: ViewerCamera, c2w: torch.Tensor) -> int:

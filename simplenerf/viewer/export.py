@@ -36,11 +36,13 @@ def interpolate_path(keyframes: list[ViewerCamera], frames_per_segment: int) -> 
     return np.stack(poses)
 
 
-def camera_path(keyframes: list[ViewerCamera], frames_per_segment: int, max_side: int, fps: float) -> CameraPath:
-    """The path through `keyframes` with the first keyframe's field of view and aspect, its larger side `max_side`."""
-    width, height = keyframes[0].image_size(max_side)
-    return CameraPath(torch.from_numpy(interpolate_path(keyframes, frames_per_segment)), width, height,
-                      keyframes[0].fov_y, fps)
+def camera_path(keyframes: list[ViewerCamera], frames_per_segment: int, max_side: int, fps: float, fov_y: float,
+                aspect: float) -> CameraPath:
+    """The path through `keyframes` for frames of vertical field of view `fov_y` (radians) and `aspect` (width /
+    height, the larger side `max_side`): the train views' in the viewer, as tools/render_video.py builds the NDC of its
+    rays from the frames' camera (that of the data only with the train views' field of view and aspect)."""
+    width, height = ViewerCamera(np.eye(3, 4), fov_y, aspect).image_size(max_side)
+    return CameraPath(torch.from_numpy(interpolate_path(keyframes, frames_per_segment)), width, height, fov_y, fps)
 
 
 def next_free(folder: Path, stem: str, suffix: str) -> Path:

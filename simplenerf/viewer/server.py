@@ -114,7 +114,7 @@ class Viewer:
         add_cameras(server, scene.views, scene.split.train, "train", TRAIN_COLOUR, scale)
         add_cameras(server, scene.views, scene.split.test, "test", TEST_COLOUR, scale)
         if sparse is not None and len(sparse):
-            add_points(server, sfm_points(sparse, self.train), size=0.1 * scale)
+            add_points(server, sfm_points(sparse, self.train), size=0.3 * scale)
         # The first view: the train cameras' mean pose, moved back so that their frustums are in sight.
         mean = self.train.c2w.detach().cpu().double().mean(0).numpy()
         axes, upper = np.linalg.qr(mean[:, :3])  # the nearest rotation's columns, up to sign
@@ -209,7 +209,8 @@ class Viewer:
         camera, mode = request.camera, request.mode
         width, height = camera.image_size(side)
         like = next(self.model.parameters())
-        rays, valid = viewer_rays(camera, width, height, self.near, like)
+        ndc = (self.train.intrinsics[0], self.train.width, self.train.height)
+        rays, valid = viewer_rays(camera, width, height, self.near, ndc, like)
         mask = None
         nearest = nearest_camera(camera, self.train.c2w)
         if mode.kind == "mask":
@@ -259,8 +260,10 @@ class Viewer:
             if client is not None:
                 client.add_notification("Camera path", "add at least two keyframes first", auto_close_seconds=5.0)
             return None
+        # The train views' field of view and aspect: render_video builds its NDC from the frames' camera.
+        fov, aspect = vertical_fov(self.train.intrinsics[0], self.train.height), self.train.width / self.train.height
         path = camera_path(self.keyframes, int(self.frames_per_segment.value), int(self.resolution.value),
-                           float(self.fps.value))
+                           float(self.fps.value), fov, aspect)
         out = save_camera_path(self.out_dir, path)
         if client is not None:
             client.send_file_download(out.name, out.read_bytes())

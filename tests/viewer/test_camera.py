@@ -45,7 +45,8 @@ def test_a_camera_at_a_train_view_gives_that_views_rays(synthetic_scene):
     views = load_llff_scene(synthetic_scene, factor=1, n_views=2).views
     k = views.intrinsics[3]
     camera = ViewerCamera(views.c2w[3].double().numpy(), vertical_fov(k, views.height), views.width / views.height)
-    rays, valid = viewer_rays(camera, views.width, views.height, 1.0, like=views.c2w)
+    ndc = (views.intrinsics[0], views.width, views.height)
+    rays, valid = viewer_rays(camera, views.width, views.height, 1.0, ndc, like=views.c2w)
     uv = pixel_grid(views.height, views.width)
     expected = views.rays(torch.full((len(uv),), 3), uv, 1.0)
     assert len(rays) == views.height * views.width and bool(valid.all())
@@ -55,9 +56,25 @@ def test_a_camera_at_a_train_view_gives_that_views_rays(synthetic_scene):
 
 def test_rays_that_point_away_from_the_scene_are_invalid():
     turned = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]])  # OpenGL: looks along -z, into the scene
-    assert bool(viewer_rays(ViewerCamera(turned, 1.0, 1.0), 4, 4, 1.0, torch.zeros(1))[1].all())
+    ndc = (torch.tensor([[4.0, 0, 2], [0, 4, 2], [0, 0, 1]]), 4, 4)
+    assert bool(viewer_rays(ViewerCamera(turned, 1.0, 1.0), 4, 4, 1.0, ndc, torch.zeros(1))[1].all())
     backwards = turned * [[-1], [1], [-1]]  # rotated 180 degrees about y: looks along +z
-    assert not bool(viewer_rays(ViewerCamera(backwards, 1.0, 1.0), 4, 4, 1.0, torch.zeros(1))[1].any())
+    assert not bool(viewer_rays(ViewerCamera(backwards, 1.0, 1.0), 4, 4, 1.0, ndc, torch.zeros(1))[1].any())
+
+
+def test_the_ndc_is_the_datas_whatever_the_viewers_camera(synthetic_scene):
+    # The same world ray has the same NDC ray whether it comes from a train view or from a wider, larger viewer
+    # camera at the same pose: the centre pixel of both looks along the camera's axis.
+    views = load_llff_scene(synthetic_scene, factor=1, n_views=2).views
+    ndc = (views.intrinsics[0], views.width, views.height)
+    wide = ViewerCamera(views.c2w[0].double().numpy(), fov_y=1.2, aspect=2.0)
+    rays, _ = viewer_rays(wide, 200, 100, 1.0, ndc, like=views.c2w)
+    centre = 50 * 200 + 100  # pixel (100, 50) = the principal point (W / 2, H / 2)
+    uv = torch.tensor([[views.width // 2, views.height // 2]])  # the train view's principal point
+    expected = views.rays(torch.zeros(1, dtype=torch.long), uv, 1.0)
+    assert torch.allclose(rays.ndc_origins[centre], expected.ndc_origins[0], atol=1e-5)
+    assert torch.allclose(rays.ndc_directions[centre] / rays.ndc_directions[centre].norm(),
+                          expected.ndc_directions[0] / expected.ndc_directions[0].norm(), atol=1e-5)
 
 
 def test_nearest_camera_by_centre():

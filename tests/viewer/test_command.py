@@ -35,8 +35,8 @@ def test_a_port_in_use_for_view_and_for_fit(viewer_run, tmp_path):
         expected = (f"simplenerf: error: port {port} on 127.0.0.1 is in use (Address already in use): choose another "
                     "with --port N, or --port 0 for any free one")
         assert error_line(run("view", str(viewer_run[0]), "--port", str(port), check=False)) == expected
-        fit = run("fit", *run_args(tmp_path), "--trainer.max_steps", "1", "--viewer", "true", "--viewer_port",
-                  str(port), check=False)
+        fit = run("fit", *run_args(tmp_path, viewer_run[0].parent), "--trainer.max_steps", "1", "--viewer", "true",
+                  "--viewer_port", str(port), check=False)  # (the scene and SfM of the fixture's run)
         assert error_line(fit) == expected
         assert not (tmp_path / "run" / "checkpoints").exists()  # stopped before anything was written
 

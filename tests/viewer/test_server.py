@@ -128,3 +128,14 @@ def test_interpolated_path_is_slerp_between_keyframes():
     assert np.allclose(poses[2], b.c2w)
     with pytest.raises(ValueError, match="at least one keyframe"):
         interpolate_path([], 2)
+
+
+def test_a_wider_canvas_shows_the_same_scene_with_more_at_the_sides(viewer):
+    # Same pose and vertical field of view, 160 instead of 128 pixels across: the middle 128 columns are the same
+    # rays, so the same picture (the NDC is the data's, not the canvas').
+    camera = train_camera(viewer, 0)
+    wide = ViewerCamera(camera.c2w, camera.fov_y, 160 / 96)
+    narrow = viewer.render(RenderRequest(camera, RenderMode("rgb"), 128), 128).rgb
+    wider = viewer.render(RenderRequest(wide, RenderMode("rgb"), 160), 160).rgb
+    assert narrow.shape == (96, 128, 3) and wider.shape == (96, 160, 3)
+    assert np.abs(wider[:, 16:144].astype(int) - narrow.astype(int)).max() <= 1

@@ -114,7 +114,7 @@ class Viewer:
         add_cameras(server, scene.views, scene.split.train, "train", TRAIN_COLOUR, scale)
         add_cameras(server, scene.views, scene.split.test, "test", TEST_COLOUR, scale)
         if sparse is not None and len(sparse):
-            add_points(server, sfm_points(sparse, self.train), size=0.3 * scale)
+            add_points(server, sfm_points(sparse, self.train), size=0.2 * scale)
         # The first view: the train cameras' mean pose, moved back so that their frustums are in sight.
         mean = self.train.c2w.detach().cpu().double().mean(0).numpy()
         axes, upper = np.linalg.qr(mean[:, :3])  # the nearest rotation's columns, up to sign

@@ -20,7 +20,7 @@ import torch
 
 from simplenerf.cli import load_for_tool, run_tool, split_overrides
 from simplenerf.viz.trajectories import read_camera_path
-from simplenerf.viz.video import downscale_intrinsics, render_scene_video, render_video
+from simplenerf.viz.video import render_camera_path_video, render_scene_video
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -47,13 +47,11 @@ def main() -> None:
         path = read_camera_path(args.trajectory)  # bad file: one line, before the model loads
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt, device=args.device)
     if args.trajectory:
-        intrinsics, height, width = downscale_intrinsics(path.intrinsics, path.height, path.width, args.factor_down)
         out = args.out or Path(cli.trainer.default_root_dir) / f"video_{Path(args.trajectory).stem}.mp4"
-        depth_range = tuple(args.depth_range) if args.depth_range else None
-        written, (closest, farthest) = render_video(cli.model.nerf, path.c2w, intrinsics, height, width,
-                                                    cli.datamodule.near, cli.model.hparams.chunk, out, path.fps,
-                                                    depth_range)
-        print(f"video: {written} ({len(path.c2w)} frames of {2 * width}x{height}, {args.trajectory}; "
+        written, n, width, height, (closest, farthest) = render_camera_path_video(
+            cli.model, cli.datamodule, path, out, args.factor_down,
+            tuple(args.depth_range) if args.depth_range else None)
+        print(f"video: {written} ({n} frames of {2 * width}x{height}, {args.trajectory}; "
               f"--depth-range {closest:.4g} {farthest:.4g})")
         return
     kind = args.path or getattr(cli.datamodule, "video_trajectory", "spiral")

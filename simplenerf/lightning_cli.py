@@ -6,7 +6,7 @@ Defaults every run gets: W&B logging (offline without credentials), progress (a 
 every N steps in a log file: `--progress.*`), rays/s, learning-rate logging, checkpoints under
 `<trainer.default_root_dir>/checkpoints` (resume with `--ckpt_path last`), a stop on a NaN/inf loss, the validation
 renders (`--val_renders.*`), the evaluation callback (`--evaluation.*`) that writes test metrics and renders, and an
-optional video at the end of training (`--video.frames N`).
+optional video at the end of training (`--video.frames N`); `--viewer true`: the web viewer (`simplenerf.viewer`).
 
 A run is trusted before it starts: inputs (data, LPIPS weights, the checkpoint and whether it fits the model, the
 run folder; `simplenerf.checks`) are checked first and a problem stops the command with one `simplenerf: error:`
@@ -142,6 +142,9 @@ class SimpleNeRFCLI(LightningCLI):
                 help="Start afresh in a run folder that already has checkpoints, deleting them. Without it, fit "
                 "refuses such a folder unless it resumes with --ckpt_path.",
             )
+            parser.add_argument("--viewer", type=bool, default=False,
+                                help="Open the web viewer of the run while it trains (docs/viewer.md).")
+            parser.add_argument("--viewer_port", type=int, default=8080, help="The viewer's port (0: any free one).")
         if subcommand in ("fit", "test"):
             parser.add_argument(
                 "--allow_changes", type=list[str], default=[],
@@ -177,6 +180,10 @@ class SimpleNeRFCLI(LightningCLI):
         return list(dict.fromkeys(folders))
 
     def _run_subcommand(self, subcommand: str) -> None:
+        if subcommand == "fit" and self.config_init[subcommand].get("viewer"):  # a callback like the others
+            from simplenerf.viewer.callback import TrainingViewer
+
+            self.trainer.callbacks.append(TrainingViewer(port=self.config_init[subcommand]["viewer_port"]))
         # Bad input (a missing scene, missing LPIPS weights, a checkpoint that does not fit) stops here, before
         # loggers or outputs create anything: the data module and every callback that declares pre-flight checks
         # (`simplenerf.checks`: ChecksModel, ChecksInputs, ChecksOutputs) run them.
@@ -274,7 +281,8 @@ def trainer_defaults() -> dict:
 
 
 # The arguments of a subcommand itself, not of the model, data or trainer: a fit saves them in <run>/config.yaml.
-SUBCOMMAND_KEYS = ("ckpt_path", "weights_only", "overwrite", "allow_changes")
+SUBCOMMAND_KEYS = ("ckpt_path", "weights_only", "overwrite", "allow_changes", "viewer", "viewer_port")
+FIT_ONLY_KEYS = ("overwrite", "viewer", "viewer_port")
 
 
 def without_subcommand_keys(args: list[str], drop: tuple[str, ...]) -> list[str]:
@@ -344,7 +352,7 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
     if not run:  # a tool: none of a subcommand's arguments apply
         drop = SUBCOMMAND_KEYS
     else:
-        drop = {"fit": (), "test": ("overwrite",)}.get(given[0] if given else "", ("overwrite", "allow_changes"))
+        drop = {"fit": (), "test": FIT_ONLY_KEYS}.get(given[0] if given else "", (*FIT_ONLY_KEYS, "allow_changes"))
     return cli_class(
         SimpleNeRF,
         LightningDataModule,

@@ -23,6 +23,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("method", "optim"),  # SimpleNeRF's augmentations, reliability masks and losses; the optimiser
     ("module",),  # the LightningModule
     ("viz",),  # pictures, videos, geometry export
+    ("viewer",),  # the web viewer (its command: commands/view.py)
     ("evaluation",),  # the evaluation protocol
     ("reporting", "checks", "resume", "run_lock", "callbacks"),  # tables of results; a run's checks and records
     ("lightning_cli",),  # the LightningCLI

@@ -4,7 +4,8 @@
         -- --data.init_args.scene_dir data/nerf_llff_data/fern
 
 Paths: `spiral` (LLFF: 120 frames, 2 rotations around the train views) or `recorded` (RealEstate-10K: the clip's
-own cameras). Default: the scene's `camera_path` (LLFF: `spiral`, RealEstate-10K: `recorded`). Everything
+own cameras), or `--trajectory FILE`, a camera path exported from `simplenerf view` (its poses, size and fps).
+Default: the scene's `camera_path` (LLFF: `spiral`, RealEstate-10K: `recorded`). Everything
 after `--` is passed to the CLI as overrides. Writes <trainer.default_root_dir>/video_<path>.mp4 unless --out.
 The depth colour range used is printed; give it to another model's video with --depth-range to compare the two.
 """
@@ -17,9 +18,10 @@ from pathlib import Path
 
 import torch
 
-from simplenerf.lightning_cli import load_for_tool
 from simplenerf.commands import CommandParser, split_overrides
-from simplenerf.viz.video import render_scene_video
+from simplenerf.lightning_cli import load_for_tool
+from simplenerf.viz.camera_path import read_camera_path
+from simplenerf.viz.video import render_camera_path_video, render_scene_video
 
 
 def parse_args(argv: Sequence[str]) -> argparse.Namespace:
@@ -27,6 +29,7 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     parser.add_argument("--config", required=True, action="append", help="config file(s) of the run, in order")
     parser.add_argument("--ckpt", required=True, help="checkpoint of the trained model")
     parser.add_argument("--path", choices=["spiral", "recorded"], help="camera path (default: see above)")
+    parser.add_argument("--trajectory", help="a camera path file exported from `simplenerf view` (instead of --path)")
     parser.add_argument("--frames", type=int, default=120, help="frames of the spiral")
     parser.add_argument("--rotations", type=float, default=2, help="turns of the spiral")
     parser.add_argument("--factor-down", type=int, default=1, help="render at 1/N of the data's resolution")
@@ -41,7 +44,16 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
 def main(argv: Sequence[str]) -> None:
     own, overrides = split_overrides(argv)
     args = parse_args(own)
+    path = read_camera_path(args.trajectory) if args.trajectory else None  # a bad file: one line, before loading
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt, device=args.device)
+    if path is not None:
+        out = args.out or Path(cli.trainer.default_root_dir) / f"video_{Path(args.trajectory).stem}.mp4"
+        written, n, width, height, (closest, farthest) = render_camera_path_video(
+            cli.model, cli.datamodule, path, out, args.factor_down,
+            tuple(args.depth_range) if args.depth_range else None)
+        print(f"video: {written} ({n} frames of {2 * width}x{height}, {args.trajectory}; "
+              f"--depth-range {closest:.4g} {farthest:.4g})")
+        return
     kind = args.path or cli.datamodule.scene.camera_path
     out = args.out or Path(cli.trainer.default_root_dir) / f"video_{kind}.mp4"
     written, n, width, height, kind, (closest, farthest) = render_scene_video(

@@ -25,6 +25,7 @@ from simplenerf.data.scene import SceneDataModule
 from simplenerf.geometry.rays import RayBundle, make_rays, pixel_grid
 from simplenerf.geometry.trajectories import TrajectoryKind
 from simplenerf.model.nerf import NeRF
+from simplenerf.viz.camera_path import CameraPath
 from simplenerf.viz.pictures import colorize_depth
 
 
@@ -200,6 +201,23 @@ def render_scene_video(
     written, used_range = render_video(model.nerf, c2w, intrinsics, height, width, datamodule.near,
                                        model.hparams.chunk, out_path, fps, depth_range)
     return written, len(c2w), width, height, kind, used_range
+
+
+def render_camera_path_video(
+    model: L.LightningModule,
+    datamodule: L.LightningDataModule,
+    path: CameraPath,
+    out_path: str | Path,
+    factor_down: int = 1,
+    depth_range: tuple[float, float] | None = None,
+) -> tuple[Path, int, int, int, tuple[float, float]]:
+    """The video of a trained module along a saved camera path (`simplenerf view`'s export), at the path's size / N
+    and frame rate. Returns the written path, the number of frames, the width and height of each half and the depth
+    range."""
+    intrinsics, height, width = downscale_intrinsics(path.intrinsics, path.height, path.width, factor_down)
+    written, used_range = render_video(model.nerf, path.c2w, intrinsics, height, width, datamodule.near,
+                                       model.hparams.chunk, out_path, path.fps, depth_range)
+    return written, len(path.c2w), width, height, used_range
 
 
 class TrainingVideo(L.Callback):

@@ -1,6 +1,6 @@
 """The LightningCLI of `python -m simplenerf {fit,validate,test,predict} --config ...`, with the project's defaults;
-`make_cli` builds it for the Lightning verbs (`lightning_main`, dispatched by `simplenerf.commands`), the verbs that read
-a run and the sweep's jobs.
+`make_cli` builds it for the Lightning verbs (`lightning_main`, dispatched by `simplenerf.commands`), the verbs that
+read a run and the sweep's jobs.
 
 Defaults every run gets: W&B logging (offline without credentials), progress (a bar in a terminal, a plain line
 every N steps in a log file: `--progress.*`), rays/s, learning-rate logging, checkpoints under

@@ -31,11 +31,12 @@ class Verb:
 
 LIGHTNING_VERBS = ("fit", "validate", "test", "predict")  # LightningCLI's subcommands (simplenerf.lightning_cli)
 
+LIGHTNING = "simplenerf.lightning_cli:lightning_main"
 VERBS: dict[str, Verb] = {
-    "fit": Verb("simplenerf.lightning_cli:lightning_main", "train a run from a config (resume it with --ckpt_path last)"),
-    "validate": Verb("simplenerf.lightning_cli:lightning_main", "score a run's validation view"),
-    "test": Verb("simplenerf.lightning_cli:lightning_main", "render and score every test frame into <run>/test"),
-    "predict": Verb("simplenerf.lightning_cli:lightning_main", "render the test frames"),
+    "fit": Verb(LIGHTNING, "train a run from a config (resume it with --ckpt_path last)"),
+    "validate": Verb(LIGHTNING, "score a run's validation view"),
+    "test": Verb(LIGHTNING, "render and score every test frame into <run>/test"),
+    "predict": Verb(LIGHTNING, "render the test frames"),
     "sweep": Verb("simplenerf.commands.sweep", "scenes x views x models x seeds as jobs (SLURM, local), then a table"),
     "process-data": Verb("simplenerf.commands.process_data", "own photos -> a scene folder (SfM with pycolmap)"),
     "render-video": Verb("simplenerf.commands.render_video", "video of a trained run along the camera path"),

@@ -15,7 +15,6 @@ from collections.abc import Sequence
 
 import torch
 
-from simplenerf.lightning_cli import load_for_tool
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.reference_depth import export_reference_depth
 from simplenerf.lightning_cli import load_for_tool

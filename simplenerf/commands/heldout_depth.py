@@ -17,7 +17,6 @@ import json
 from collections.abc import Sequence
 from pathlib import Path
 
-from simplenerf.lightning_cli import load_for_tool
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.heldout_depth import heldout_depth_error, heldout_observations
 from simplenerf.lightning_cli import load_for_tool

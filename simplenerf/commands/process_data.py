@@ -13,8 +13,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from simplenerf.commands import CommandParser
-from simplenerf.sfm.photos import process_photos
 from simplenerf.sfm.mapping import CAMERA_MODELS
+from simplenerf.sfm.photos import process_photos
 
 
 def parse_args(argv: Sequence[str]) -> argparse.Namespace:

@@ -17,10 +17,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from simplenerf.lightning_cli import load_for_tool
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.errors import DataError
-from simplenerf.metrics.lpips import LPIPS
 from simplenerf.evaluation.rescore import comparison_table, find_test_folder, rescore_run
 from simplenerf.evaluation.visibility import MIN_VIEWS
 from simplenerf.lightning_cli import load_for_tool

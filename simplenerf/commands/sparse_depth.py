@@ -12,8 +12,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from simplenerf.lightning_cli import make_cli
 from simplenerf.errors import SimpleNeRFError
+from simplenerf.lightning_cli import make_cli
 
 
 def main(argv: Sequence[str]) -> None:

@@ -16,7 +16,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from simplenerf.lightning_cli import load_for_tool
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.evaluator import export_visibility_masks
 from simplenerf.evaluation.visibility import MIN_VIEWS

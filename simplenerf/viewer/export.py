@@ -11,8 +11,8 @@ import torch
 import viser.transforms as vtf
 
 from simplenerf.viewer.camera import ViewerCamera
-from simplenerf.viz.pictures import write_png
 from simplenerf.viz.camera_path import CameraPath, write_camera_path
+from simplenerf.viz.pictures import write_png
 
 
 def interpolate_path(keyframes: list[ViewerCamera], frames_per_segment: int) -> np.ndarray:

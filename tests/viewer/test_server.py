@@ -10,7 +10,7 @@ from simplenerf.viewer.camera import ViewerCamera, vertical_fov
 from simplenerf.viewer.export import interpolate_path
 from simplenerf.viewer.modes import RenderMode
 from simplenerf.viewer.progressive import ProgressiveRenderer, RenderRequest
-from simplenerf.geometry.trajectories import read_camera_path
+from simplenerf.viz.camera_path import read_camera_path
 from tests.conftest import REPO
 
 

@@ -168,6 +168,8 @@ class SimpleNeRFCLI(LightningCLI):
                                                  "with `--evaluation.lpips false`", str(e))) from None
         views = getattr(self.datamodule, "train_views", None) if subcommand == "fit" else None
         check_model_meets_data(self.model, len(views) if views is not None else None, subcommand)
+        if views is not None:  # what the reliability masks reproject into
+            self.model.set_train_views(views)
         config = self.config_init[subcommand]
         folder = self.checkpoint_folder()
         given = config.get("ckpt_path")

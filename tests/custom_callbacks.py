@@ -15,7 +15,7 @@ class PoisonLossAt(L.Callback):
 
     def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
         if trainer.global_step == self.step:
-            pl_module.loss_weights["color"] = float("nan")
+            pl_module.terms["color"].weight = float("nan")
 
 
 class LossLog(L.Callback):

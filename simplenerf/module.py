@@ -19,6 +19,7 @@ from lightning.pytorch.strategies import DDPStrategy, ParallelStrategy
 from torch import nn
 
 from simplenerf.data.batches import Frame, RayBatch, SparseDepthBatch, TrainingBatch
+from simplenerf.errors import SimpleNeRFError
 from simplenerf.evaluation.metrics import psnr
 from simplenerf.geometry.rays import pixel_grid
 from simplenerf.geometry.views import Views
@@ -139,7 +140,9 @@ class SimpleNeRF(L.LightningModule):
 
     def on_fit_start(self) -> None:
         if self.needs_masks:
-            assert self.train_views is not None, "the masks need the train views: call set_train_views before fit"
+            if self.train_views is None:
+                raise SimpleNeRFError("the reliability masks need the train views: call "
+                                      "model.set_train_views(datamodule.train_views) before trainer.fit")
             self.train_views = self.train_views.to(self.device)
 
     def render(self, rays, randomized: bool, color: bool = True) -> Renders:

@@ -37,7 +37,7 @@ class Augmentation(nn.Module):
     ) -> None:
         """
         Args:
-            name: loss name (`points` -> L_ap, `views` -> L_av); its weight is `loss_weights[name]` of the module.
+            name: name of its masked depth term (`points` -> L_ap, `views` -> L_av; `method.objective`).
             field: the simplified field (any `Field`), evaluated at the main model's samples.
             mask: decides per ray which of the two depths supervises the other.
             depth_weight: lambda_3 / lambda_4, weight of the masked depth loss (a warm-up schedule may override it).

@@ -26,7 +26,14 @@ from simplenerf.geometry.views import Views
 from simplenerf.method.augmentations import Augmentation
 from simplenerf.method.losses import psnr_of_mse
 from simplenerf.method.objective import (
-    RESERVED_NAMES, MaskedDepthTerm, Objective, RenderedRays, Renders, Term, build_terms, part_loss,
+    RESERVED_NAMES,
+    MaskedDepthTerm,
+    Objective,
+    RenderedRays,
+    Renders,
+    Term,
+    build_terms,
+    part_loss,
 )  # fmt: skip
 from simplenerf.method.reliability import ReliabilityMask, ReprojectionErrors
 from simplenerf.model.nerf import FrameRender, NeRF
@@ -188,7 +195,8 @@ class SimpleNeRF(L.LightningModule):
         """A part's random and / or sparse rays rendered (a whole batch in one pass, then split; sparse rays alone:
         depth only)."""
         if part.random is not None and part.sparse is not None:
-            random, sparse = self.render(part.random.rays.cat(part.sparse.rays), randomized=True).split(len(part.random))
+            both = self.render(part.random.rays.cat(part.sparse.rays), randomized=True)
+            random, sparse = both.split(len(part.random))
         else:
             random = self.render(part.random.rays, randomized=True) if part.random is not None else None
             sparse = self.render(part.sparse.rays, randomized=True, color=False) if part.sparse is not None else None

@@ -52,7 +52,6 @@ class StepRecord(L.Callback):
         self.path = path
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
-        import torch
 
         total = sum(p.detach().double().sum() for p in pl_module.parameters())
         terms = ",".join(sorted(k for k in trainer.callback_metrics if k.startswith("train/loss_")))

@@ -95,7 +95,8 @@ def test_masked_losses_cost_nothing_before_the_warm_up(datamodule, monkeypatch):
         model.terms[name].weight = 0.0
     calls = []
     original = reliability.ReprojectionErrors.__call__
-    monkeypatch.setattr(reliability.ReprojectionErrors, "__call__", lambda self, *a: calls.append(1) or original(self, *a))
+    monkeypatch.setattr(reliability.ReprojectionErrors, "__call__",
+                        lambda self, *a: calls.append(1) or original(self, *a))
     loss, logged = run_step(model, datamodule, monkeypatch)
     assert calls == []  # no mask computed
     assert {"train/loss_points", "train/loss_views", "train/loss_cfc"}.isdisjoint(logged)

@@ -12,7 +12,6 @@ parts' values, each weighted by its share of the batch's rays of that kind, sum 
 
 from __future__ import annotations
 
-import abc
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
@@ -22,8 +21,12 @@ import torch
 from simplenerf.data.batches import RayBatch, SparseDepthBatch
 from simplenerf.method.losses import coarse_fine_sparse_loss, color_loss, sparse_depth_loss
 from simplenerf.method.reliability import (
-    Direction, ReliabilityMask, ReprojectionErrors, mask_fractions, masked_depth_loss,
-)  # fmt: skip
+    Direction,
+    ReliabilityMask,
+    ReprojectionErrors,
+    mask_fractions,
+    masked_depth_loss,
+)
 from simplenerf.model.fields import Field
 from simplenerf.model.nerf import NeRFOutputs
 from simplenerf.model.rendering import RenderOutputs
@@ -100,8 +103,8 @@ class TermValue:
     masks: dict[str, torch.Tensor] = field(default_factory=dict)
 
 
-class Term(abc.ABC):
-    """One weighted term of the total loss."""
+class Term:
+    """One weighted term of the total loss (a ray term implements `value`, a regulariser `once`)."""
 
     def __init__(self, name: str, weight: float, reads: tuple[RayKind, ...]) -> None:
         self.name, self.weight, self.reads = name, weight, reads

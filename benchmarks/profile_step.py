@@ -67,6 +67,8 @@ def profile_training(
 
     timer = Profiled()
     trainer = measuring_trainer(precision, accelerator, 1, max_steps=warmup + 1, callbacks=[timer])
+    datamodule.setup("fit")
+    model.set_train_views(datamodule.train_views)
     trainer.fit(model, datamodule)
     assert timer.profiler is not None, "the profiled iteration did not run"
     events = timer.profiler.key_averages()

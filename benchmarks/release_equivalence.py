@@ -14,7 +14,7 @@ checks the data of fern with 2, 3 and 4 views (and the RealEstate-10K clip), one
 200-step trajectory with 2 views.
 
 Settings of ours switched to the release's behaviour for the check (each listed in the table's notes):
-`PatchReprojectionMask.require_in_front` false (the release has no z > 0 check), `rays_per_backward` null (the
+`PatchReprojectionMask.require_in_front` false (the release has no z > 0 check), `rays_per_backward` 2048 (the
 release's two sub-batches: random rays, then sparse rays), `supervision: one_way` and `coarse_fine_on_sparse_rays`
 (both our defaults already), sparse-depth weights 1 (the release's MSE is unweighted).
 """
@@ -44,7 +44,7 @@ def our_module(config: Path, scene_dir: Path, views: int, factor: int):
     from simplenerf.method.reliability import PatchReprojectionMask
 
     args = ["--config", str(config), "--data.init_args.scene_dir", str(scene_dir), "--data.init_args.n_views",
-            str(views), "--data.init_args.factor", str(factor), "--model.rays_per_backward", "null",
+            str(views), "--data.init_args.factor", str(factor), "--model.rays_per_backward", "2048",
             "--trainer.logger", "false"]
     module = make_cli(args, run=False).model
     for mask in [aug.mask for aug in module.augmentations] + [module.coarse_fine_mask]:
@@ -108,9 +108,9 @@ def step_check(args, repo, report: Report, views: int, trajectory: bool) -> None
         run.model.to(dtype), module.to(dtype)
     batch = steps.release_batch(run, args.iter)
     ours_batch = steps.to_training_batch(batch)
-    module.train_views = steps.train_views(batch)
+    module.set_train_views(steps.train_views(batch))
     for name in ("points", "views", "cfc"):
-        module.loss_weights[name] = 0.1  # the release's iter_weights at iteration >= 10000
+        module.terms[name].weight = 0.1  # the release's iter_weights at iteration >= 10000
     generator = torch.Generator().manual_seed(args.seed)
     theirs, forwards = steps.run_release_step(run, copy.copy(batch), args.iter, generator)
     draws = steps.release_draws(run, forwards, ["coarse", "points", "views"])
@@ -201,7 +201,7 @@ def main() -> int:
         step_check(args, repo, report, n, trajectory=i == 0 and args.trajectory_steps > 0)
         print(f"step {args.scene_dir.name} {n}v: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     report.add(flag("settings", "switched to the release's behaviour", True,
-                    "PatchReprojectionMask.require_in_front=false; rays_per_backward=null; supervision one_way; "
+                    "PatchReprojectionMask.require_in_front=false; rays_per_backward=2048; supervision one_way; "
                     "coarse_fine_on_sparse_rays true; sparse-depth weights 1; our rays = the release's rays"))
 
     table = report.markdown()

@@ -59,7 +59,7 @@ class FrameTimer(L.Callback):
         synchronize(pl_module)
         self.seconds.append(time.perf_counter() - self._start)
         self.cpu_s.append(cpu_seconds() - self._cpu)
-        rgb = outputs["rgb"] if isinstance(outputs, dict) else outputs.rgb
+        rgb = outputs.rgb  # a FrameRender
         self.shape = tuple(rgb.shape[:-1])
         self.rays.append(rgb.numel() // rgb.shape[-1])
 

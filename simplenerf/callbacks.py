@@ -6,6 +6,7 @@ from __future__ import annotations
 import datetime
 import sys
 import time
+from typing import TYPE_CHECKING
 
 import lightning as L
 import torch
@@ -14,6 +15,9 @@ from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, Ri
 
 from simplenerf.errors import SimpleNeRFError, TrainingDiverged
 from simplenerf.interrupts import Interrupted
+
+if TYPE_CHECKING:
+    from simplenerf.module import SimpleNeRF
 
 
 class RaysPerSecond(L.Callback):
@@ -229,9 +233,11 @@ class ProgressLog(L.Callback):
 class LossWeightSchedule(L.Callback):
     """Step-dependent loss weights as data: piecewise-constant schedules set before every training step.
 
-    `schedules` maps a loss name of the module's `loss_weights` to [[step, value], ...]: from each listed step on,
-    the weight is its value (before the first listed step the module's own weight stays). The paper's warm-up is
-    {points: [[0, 0.0], [10000, 0.1]], views: ..., cfc: ...}. Each scheduled weight is logged as train_params/<name>.
+    `schedules` maps the name of a term of the module's objective (`SimpleNeRF.terms`: color, sparse_depth, an
+    augmentation's name, cfc, a field's regulariser such as tv_fine) to [[step, value], ...]: from each listed step
+    on, the term's weight is its value (before the first listed step the configured weight stays). The paper's warm-up
+    is {points: [[0, 0.0], [10000, 0.1]], views: ..., cfc: ...}. The module logs every term's weight as
+    train_params/<name>.
     """
 
     def __init__(self, schedules: dict[str, list[tuple[int, float]]]) -> None:
@@ -253,19 +259,18 @@ class LossWeightSchedule(L.Callback):
                 current = value
         return current
 
-    def check_model(self, model: L.LightningModule) -> None:
-        """Every scheduled name must be one of the model's losses; the CLI calls this before any data is read, so a
-        typo stops the run with one line instead of failing at the first batch."""
-        weights = getattr(model, "loss_weights", {})
-        unknown = sorted(set(self.schedules) - set(weights))
+    def check_model(self, model: SimpleNeRF) -> None:
+        """Every scheduled name must be one of the model's terms (`SimpleNeRF.terms`); the CLI calls this before any
+        data is read, so a typo stops the run with one line instead of failing at the first batch."""
+        unknown = sorted(set(self.schedules) - set(model.terms))
         if unknown:
             raise SimpleNeRFError(
                 f"LossWeightSchedule schedules {', '.join(map(repr, unknown))}, but the model's losses are "
-                f"{', '.join(sorted(weights))} (augmentation names come from model.augmentations)"
+                f"{', '.join(sorted(model.terms))} (augmentation names come from model.augmentations)"
             )
 
     def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
         self.check_model(pl_module)
         for name in self.schedules:
-            pl_module.loss_weights[name] = self.value(name, trainer.global_step, pl_module.loss_weights[name])
-            pl_module.log(f"train_params/{name}", pl_module.loss_weights[name])
+            term = pl_module.terms[name]
+            term.weight = self.value(name, trainer.global_step, term.weight)

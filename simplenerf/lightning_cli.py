@@ -197,6 +197,7 @@ class SimpleNeRFCLI(LightningCLI):
                                          "with `--evaluation.lpips false`", str(e))) from None
         if data is not None and subcommand == "fit":
             check_model_meets_data(self.model, len(data.train_views), subcommand)
+            self.model.set_train_views(data.train_views)  # what the reliability masks reproject into
         config = self.config_init[subcommand]
         folder = self.checkpoint_folder()
         given = config.get("ckpt_path")

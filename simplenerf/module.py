@@ -1,19 +1,21 @@
-"""The LightningModule: composes the NeRF, its augmentations and the losses; nothing else lives here.
+"""The LightningModule: composes the NeRF, its augmentations and the objective; nothing else lives here.
 
-`training_step` mirrors the paper's total loss (Sec. 4.4), L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc, with
-the terms that are configured. Pictures are the callbacks' job (`simplenerf.viz.renders`), evaluation (metrics,
-files) the `Evaluator`'s.
+`training_step` is one optimiser step of the paper's total loss (Sec. 4.4), L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav
++ l5 Lcfc (+ the fields' regularisers), the terms of `method.objective`. Pictures are the callbacks' job
+(`simplenerf.viz.renders`), evaluation (metrics, files) the `Evaluator`'s.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass
-from typing import Literal
 
 import lightning as L
 import torch
 from jsonargparse.typing import PositiveInt
 from lightning.pytorch.cli import LRSchedulerCallable, OptimizerCallable
+from lightning.pytorch.strategies import DDPStrategy, ParallelStrategy
 from torch import nn
 
 from simplenerf.data.batches import Frame, RayBatch, SparseDepthBatch, TrainingBatch
@@ -21,27 +23,21 @@ from simplenerf.errors import SimpleNeRFError
 from simplenerf.geometry.rays import pixel_grid
 from simplenerf.geometry.views import Views
 from simplenerf.method.augmentations import Augmentation
-from simplenerf.method.losses import coarse_fine_sparse_loss, color_loss, psnr_of_mse, sparse_depth_loss
-from simplenerf.method.reliability import ReliabilityMask, mask_fractions, masked_depth_loss
+from simplenerf.method.losses import psnr_of_mse
+from simplenerf.method.objective import (
+    RESERVED_NAMES,
+    MaskedDepthTerm,
+    Objective,
+    RenderedRays,
+    Renders,
+    Term,
+    build_terms,
+    part_loss,
+)  # fmt: skip
+from simplenerf.method.reliability import ReliabilityMask, ReprojectionErrors
 from simplenerf.metrics.scores import psnr
-from simplenerf.model.nerf import NeRF, NeRFOutputs
-from simplenerf.model.rendering import RenderOutputs
+from simplenerf.model.nerf import FrameRender, NeRF
 from simplenerf.optim import ExponentialDecay, default_optimizer, parameter_groups
-
-RESERVED_LOSS_NAMES = ("color", "sparse_depth", "cfc", "regularization")
-
-
-@dataclass
-class Renders:
-    """Every render of a batch of rays: the main coarse and fine NeRF and each augmentation, by name."""
-
-    main: NeRFOutputs
-    augmented: dict[str, RenderOutputs]
-
-    def split(self, n: int) -> tuple[Renders, Renders]:
-        """The renders of the first n rays (a training batch's random rays) and of the rest (its sparse rays)."""
-        (first, rest), augmented = self.main.split(n), self.augmented.items()
-        return Renders(first, {k: r[:n] for k, r in augmented}), Renders(rest, {k: r[n:] for k, r in augmented})
 
 
 def ray_slices(n: int, size: int | None) -> list[slice]:
@@ -50,62 +46,63 @@ def ray_slices(n: int, size: int | None) -> list[slice]:
     return [slice(start, min(start + size, n)) for start in range(0, n, size)]
 
 
-def add_terms(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """Two dicts of loss terms summed by name (L_cfc, for one, has a part on each kind of ray)."""
-    return {**a, **{name: a[name] + value if name in a else value for name, value in b.items()}}
+@dataclass
+class Part:
+    """Rays rendered and backpropagated together: some random rays, some sparse-depth rays, or (a batch in one part)
+    both, with each kind's share of the batch's rays of that kind."""
+
+    random: RayBatch | None = None
+    sparse: SparseDepthBatch | None = None
+    random_share: float = 1.0
+    sparse_share: float = 1.0
+
+
+def batch_parts(batch: TrainingBatch, size: int | None) -> list[Part]:
+    """The parts of a training batch: None, the whole batch in one part; else parts of at most `size` rays, the random
+    rays first, then the sparse-depth rays (never mixed: no loss reads the colour of the sparse rays, so their parts
+    render depth only)."""
+    if size is None:
+        return [Part(batch.random, batch.sparse)]
+    n = len(batch.random)
+    parts = [Part(random=batch.random[s], random_share=(s.stop - s.start) / n) for s in ray_slices(n, size)]
+    if batch.sparse is not None:
+        m = len(batch.sparse)
+        parts += [Part(sparse=batch.sparse[s], sparse_share=(s.stop - s.start) / m) for s in ray_slices(m, size)]
+    return parts
 
 
 @dataclass
-class DepthPair:
-    """One masked depth loss: the main render tied to another one (an augmentation's, or fine for L_cfc)."""
+class StepLoss:
+    """A training step's objective, summed over its parts (all detached)."""
 
-    name: str
-    mask: ReliabilityMask
-    main: RenderOutputs
-    other: RenderOutputs
+    loss: torch.Tensor  # [] the total loss
+    values: dict[str, torch.Tensor]  # each term's value by name
+    masks: dict[str, torch.Tensor]  # fractions of +1 / -1 / 0 rays of each mask, by "<term>/<plus|minus|zero>"
+    fine_rgb: torch.Tensor  # [R, 3] main fine colours of the random rays
 
 
 class SimpleNeRF(L.LightningModule):
-    """SimpleNeRF: the main coarse/fine NeRF and its training losses."""
+    """SimpleNeRF: the main coarse/fine NeRF, its augmentations and its training objective."""
 
     def __init__(
         self,
         nerf: NeRF,
         augmentations: list[Augmentation] | None = None,
-        coarse_fine_mask: ReliabilityMask | None = None,
-        supervision: Literal["bidirectional", "one_way"] = "one_way",
-        depth_loss_space: Literal["metric", "inverse"] = "metric",
-        color_weight: float = 1.0,
-        sparse_depth_weight: float = 0.1,
-        coarse_fine_weight: float = 0.1,
-        coarse_fine_on_sparse_rays: bool = True,
+        objective: Objective = Objective(),
         optimizer: OptimizerCallable | None = None,
         lr_scheduler: LRSchedulerCallable | None = None,
         group_lr: dict[str, float] | None = None,
         chunk: PositiveInt = 8192,
-        backward_per_part: bool = False,
         rays_per_backward: PositiveInt | None = None,
     ) -> None:
         """
         Args:
             nerf: the main model (coarse and fine fields, sampling, rendering).
             augmentations: simplified fields trained beside the main model (points and views in the paper); each
-                adds its colour and sparse-depth losses and a masked depth loss `loss_weights[name]` with the main
-                model. Empty: no augmentation (DS-NeRF when sparse depth is on).
-            coarse_fine_mask: reliability mask of the coarse-fine consistency loss L_cfc; None disables L_cfc.
-            supervision: `bidirectional`: where the mask is -1 the other depth is trained toward the main one (the
-                paper's equations); `one_way`: only mask +1 rays train the main depth (what the release trains; the
-                default: on the CPU benchmark of the README it was slightly better in colour, within noise in depth).
-            depth_loss_space: what L_ap, L_av and L_cfc compare: `metric` depth (the paper and the release) or
-                `inverse` depth 1 / z, bounded by 1 / near (= 1 - NDC t with near 1). Metric depth grows without
-                bound towards the NDC far plane, where a few rays can dominate these squared losses (on the
-                RealEstate-10K grid runs, docs/results.md "Grid backbone"). The masks always compare metric depths.
-            color_weight: lambda_1, weight of the colour loss.
-            sparse_depth_weight: lambda_2, weight of DS-NeRF's sparse-depth loss (used when the data module serves
-                sparse-depth rays, `sparse_rays_per_batch` > 0).
-            coarse_fine_weight: lambda_5, weight of L_cfc (a warm-up schedule may override it per step).
-            coarse_fine_on_sparse_rays: as the release, L_cfc also has an unmasked (z_coarse - sg(z_fine))^2 on the
-                sparse-depth rays: the only path by which SfM depth reaches the main coarse field.
+                adds its colour and sparse-depth losses and a masked depth term named after it. Empty: no
+                augmentation (DS-NeRF when sparse depth is on).
+            objective: loss weights and switches of the objective besides the augmentations' own (L_cfc's mask,
+                supervision direction, depth space): `method.objective.Objective`.
             optimizer: the optimiser, given the parameter groups; null: Adam(lr 5e-4, betas 0.9 / 0.999), the
                 release's.
             lr_scheduler: the learning-rate schedule, stepped every iteration; null: `ExponentialDecay(0.1, 250000)`,
@@ -113,42 +110,47 @@ class SimpleNeRF(L.LightningModule):
             group_lr: learning rates of named parameter groups (a field's `parameter_groups()`, e.g. a grid's
                 "grid" and "decoder"); the other groups take the optimiser's.
             chunk: rays per forward pass when rendering full frames (bounds memory, not results).
-            backward_per_part: render and backpropagate the random rays, then the sparse-depth rays (as the release's
-                2048-ray sub-batches): the same loss and gradient with about half the activation memory (the random
-                draws of jitter and noise differ from one pass). Not with DDP or fp16 loss scaling.
-            rays_per_backward: with `backward_per_part`, at most this many rays per render-and-backward pass (the
-                random rays and the sparse-depth rays each split into parts): the same loss and gradient, activation
-                memory in proportion to the part. None: one part each. Set without `backward_per_part`: an error.
+            rays_per_backward: render and backpropagate a batch in parts of at most this many rays, the random rays
+                first, then the sparse-depth rays (depth only), as the release's 2048-ray sub-batches: the same loss
+                and gradient, activation memory in proportion to the part (the random draws of jitter and noise
+                differ from one part). null: the whole batch in one part.
         """
         super().__init__()
-        self.save_hyperparameters(ignore=["nerf", "augmentations", "coarse_fine_mask", "optimizer", "lr_scheduler"])
+        self.automatic_optimization = False  # a step backpropagates its parts itself (`training_step`)
+        self.save_hyperparameters(ignore=["nerf", "augmentations", "objective", "optimizer", "lr_scheduler"])
         self.nerf = nerf
         self.augmentations = nn.ModuleList(augmentations or [])
-        self.coarse_fine_mask = coarse_fine_mask
+        self.objective = objective
         self.optimizer, self.lr_scheduler, self.group_lr = optimizer, lr_scheduler, dict(group_lr or {})
-        if rays_per_backward is not None and (not backward_per_part or rays_per_backward < 1):
-            raise SimpleNeRFError(f"model.rays_per_backward {rays_per_backward} needs model.backward_per_part true and "
-                                  "a positive number of rays (it splits the per-part backward passes)")
         names = [aug.name for aug in self.augmentations]
-        if len(set(names)) != len(names) or set(RESERVED_LOSS_NAMES) & set(names):
-            raise ValueError(f"augmentation names must be unique and not one of {RESERVED_LOSS_NAMES}, got {names}")
-        # lambda_1 .. lambda_5 by loss name; `callbacks.LossWeightSchedule` changes them per step (the warm-up).
-        self.loss_weights = {"color": color_weight, "sparse_depth": sparse_depth_weight, "cfc": coarse_fine_weight}
-        self.loss_weights.update({aug.name: aug.depth_weight for aug in self.augmentations})
-        self.train_views: Views | None = None  # what the reliability masks look at, on the module's device
+        if len(set(names)) != len(names) or set(RESERVED_NAMES) & set(names):
+            raise ValueError(f"augmentation names must be unique and not one of {RESERVED_NAMES}, got {names}")
+        fields = {"coarse": self.nerf.coarse, "fine": self.nerf.fine, **{a.name: a.field for a in self.augmentations}}
+        # The terms by name; `callbacks.LossWeightSchedule` sets their weights per step (the warm-up).
+        self.terms: dict[str, Term] = build_terms(objective, list(self.augmentations), fields)
+        self.train_views: Views | None = None  # what the reliability masks look at (`set_train_views`)
+
+    @property
+    def coarse_fine_mask(self) -> ReliabilityMask | None:
+        """The reliability mask of L_cfc (None: no L_cfc)."""
+        return self.objective.coarse_fine_mask
 
     @property
     def needs_masks(self) -> bool:
         """Whether training compares depths across train views (needs at least 2 train views)."""
-        return bool(self.augmentations) or self.coarse_fine_mask is not None
+        return any(isinstance(term, MaskedDepthTerm) for term in self.terms.values())
+
+    def set_train_views(self, views: Views) -> None:
+        """The train views the reliability masks reproject into; given by the CLI before `fit` (Python users: before
+        `trainer.fit`, e.g. `model.set_train_views(datamodule.train_views)` after `datamodule.setup("fit")`)."""
+        self.train_views = views
 
     def on_fit_start(self) -> None:
-        if self.hparams.backward_per_part and getattr(self.trainer, "world_size", 1) > 1:
-            raise SimpleNeRFError("backward_per_part runs two backward passes per step, which DDP's gradient "
-                                  "synchronisation does not allow: set --model.backward_per_part false "
-                                  "--model.rays_per_backward null with DDP")
         if self.needs_masks:
-            self.train_views = self.trainer.datamodule.train_views.to(self.device)
+            if self.train_views is None:
+                raise SimpleNeRFError("the reliability masks need the train views: call "
+                                      "model.set_train_views(datamodule.train_views) before trainer.fit")
+            self.train_views = self.train_views.to(self.device)
 
     def render(self, rays, randomized: bool, color: bool = True) -> Renders:
         """The main NeRF and every augmentation along `rays` (a `RayBundle`); `color` False: depths only (the
@@ -157,133 +159,91 @@ class SimpleNeRF(L.LightningModule):
         return Renders(main, {aug.name: aug.render(self.nerf, main, randomized) for aug in self.augmentations})
 
     def training_step(self, batch: TrainingBatch, batch_idx: int) -> torch.Tensor:
-        # L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc (paper Sec. 4.4): the colour and masked depth terms are
-        # on the random rays, the sparse-depth terms on the sparse-depth rays.
-        if self.hparams.backward_per_part and batch.sparse is not None:
-            loss, losses, masks, fine_rgb = self.backward_in_parts(batch)
-        else:  # one pass over the random rays followed by the sparse-depth rays, then split
-            random, sparse = self.render(batch.rays, randomized=True).split(len(batch.random))
-            losses, masks = self.random_ray_losses(random, batch.random)
-            sparse_losses = self.sparse_ray_losses(sparse, batch.sparse)
-            loss = self.weighted(losses) + self.weighted(sparse_losses, regularize=True)
-            losses, fine_rgb = add_terms(losses, sparse_losses), random.main.fine.rgb
+        """One optimiser step of L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc (paper Sec. 4.4; `self.terms`):
+        the batch's parts rendered and backpropagated (`backward_parts`), the gradients averaged over DDP processes
+        once, the optimiser's step and the learning-rate schedule's. Returns the total loss (detached)."""
+        optimizer, schedule = self.optimizers(), self.lr_schedulers()
+        optimizer.zero_grad()
+        strategy = self.trainer.strategy  # DDP: no gradient sync per part, one average after the last
+        with strategy.block_backward_sync() if isinstance(strategy, ParallelStrategy) else nullcontext():
+            step = self.backward_parts(batch, self.manual_backward)
+        self.average_gradients()
+        optimizer.step()
+        schedule.step()
+        self.log_step(step, batch)
+        return step.loss
 
+    def backward_parts(self, batch: TrainingBatch, backward: Callable[[torch.Tensor], None]) -> StepLoss:
+        """Renders and backpropagates (`backward(loss)`) the batch's parts in turn (`batch_parts`), each part's
+        terms weighted by its share of the rays (every term is a mean over rays: the parts' losses and gradients sum
+        to the whole batch's); the fields' regularisers once, with the last part. Gradients accumulate in `.grad`."""
+        parts = batch_parts(batch, self.hparams.rays_per_backward)
+        total, values, masks, fine_rgb = torch.zeros((), device=self.device), {}, {}, []
+        for i, part in enumerate(parts):
+            rendered = self.render_part(part)
+            result = part_loss(self.terms, rendered, regularize=i == len(parts) - 1)
+            backward(result.loss)  # frees this part's activations before the next part is rendered
+            total = total + result.loss.detach()
+            for name, value in result.values.items():
+                values[name] = values[name] + value if name in values else value
+            for name, value in result.masks.items():
+                masks[name] = masks[name] + value if name in masks else value
+            fine_rgb += [r.renders.main.fine.rgb.detach() for r in rendered if r.kind == "random"]
+        return StepLoss(total, values, masks, torch.cat(fine_rgb))
+
+    def render_part(self, part: Part) -> list[RenderedRays]:
+        """A part's random and / or sparse rays rendered (a whole batch in one pass, then split; sparse rays alone:
+        depth only)."""
+        if part.random is not None and part.sparse is not None:
+            both = self.render(part.random.rays.cat(part.sparse.rays), randomized=True)
+            random, sparse = both.split(len(part.random))
+        else:
+            random = self.render(part.random.rays, randomized=True) if part.random is not None else None
+            sparse = self.render(part.sparse.rays, randomized=True, color=False) if part.sparse is not None else None
+        rendered = []
+        if random is not None:
+            errors = ReprojectionErrors(self.train_views, part.random) if self.train_views is not None else None
+            rendered.append(RenderedRays("random", part.random, random, part.random_share, errors))
+        if sparse is not None:
+            rendered.append(RenderedRays("sparse", part.sparse, sparse, part.sparse_share))
+        return rendered
+
+    def average_gradients(self) -> None:
+        """Under DDP, each process's accumulated gradient replaced by the processes' mean, in one all-reduce. Not
+        DDP's own sync on the last part: that part may be sparse rays rendered without colour, whose backward leaves
+        the colour branches out, and DDP's reducer syncs only what takes part in the synced backward."""
+        strategy = self.trainer.strategy
+        if not isinstance(strategy, DDPStrategy) or strategy.world_size < 2:
+            return
+        grads = [p.grad for p in self.parameters() if p.grad is not None]
+        mean = strategy.reduce(torch.cat([g.reshape(-1) for g in grads]), reduce_op="mean")
+        for grad, value in zip(grads, mean.split([g.numel() for g in grads]), strict=True):
+            grad.copy_(value.view_as(grad))
+
+    def log_step(self, step: StepLoss, batch: TrainingBatch) -> None:
+        """Logs the step's loss, terms, mask fractions, term weights and the fine PSNR of its random rays."""
         # sync_dist: under DDP every rank trains on its own rays; the logged values are their mean (no-op otherwise).
-        self.log_dict({f"train/loss_{name}": value for name, value in losses.items()}, sync_dist=True)
-        self.log_dict({f"train/mask_{name}": value for name, value in masks.items()}, sync_dist=True)
-        train_psnr = psnr_of_mse(fine_rgb, batch.random.rgb)
-        self.log_dict({"train/loss": loss, "train/psnr_fine": train_psnr}, sync_dist=True)
-        self.log("loss", loss, prog_bar=True, logger=False)
-        return loss
+        self.log_dict({f"train/loss_{name}": value for name, value in step.values.items()}, sync_dist=True)
+        self.log_dict({f"train/mask_{name}": value for name, value in step.masks.items()}, sync_dist=True)
+        self.log_dict({f"train_params/{name}": float(term.weight) for name, term in self.terms.items()})
+        train_psnr = psnr_of_mse(step.fine_rgb, batch.random.rgb)
+        self.log_dict({"train/loss": step.loss, "train/psnr_fine": train_psnr}, sync_dist=True)
+        self.log("loss", step.loss, prog_bar=True, logger=False)
 
-    def backward_in_parts(self, batch: TrainingBatch):
-        """Render and backpropagate the random rays, then the sparse-depth rays, in parts of at most
-        `rays_per_backward` rays (the sparse rays depth only: no loss reads their colours, so the fields skip their
-        colour branches). Every term is a mean over rays, so the parts' terms, each weighted by its share of the
-        rays, sum to the one-pass terms, and their gradients to its gradient.
-
-        Returns:
-            (the total loss, whose graph is the last part's: Lightning backpropagates it; the earlier parts are
-            already backpropagated), the terms by name, the mask fractions by name, [R, 3] main fine colours of the
-            random rays (detached).
-        """
-        parts = [(batch.random[s], True) for s in ray_slices(len(batch.random), self.hparams.rays_per_backward)]
-        parts += [(batch.sparse[s], False) for s in ray_slices(len(batch.sparse), self.hparams.rays_per_backward)]
-        total, terms, masks, fine_rgb = torch.zeros((), device=self.device), {}, {}, []
-        for i, (rays, is_random) in enumerate(parts):
-            share = len(rays) / len(batch.random if is_random else batch.sparse)
-            renders = self.render(rays.rays, randomized=True, color=is_random)
-            if is_random:
-                losses, part_masks = self.random_ray_losses(renders, rays)
-                masks = add_terms(masks, {k: share * v for k, v in part_masks.items()})
-                fine_rgb.append(renders.main.fine.rgb.detach())
-            else:
-                losses = self.sparse_ray_losses(renders, rays)
-            losses = {name: share * value for name, value in losses.items()}
-            last = i == len(parts) - 1
-            loss = self.weighted(losses, regularize=last)  # the fields' regularisers once, with the last part
-            if not last:
-                loss.backward()  # frees this part's activations before the next part is rendered
-                loss = loss.detach()
-            total, terms = total + loss, add_terms(terms, {k: v.detach() for k, v in losses.items()})
-        return total, terms, masks, torch.cat(fine_rgb)
-
-    def random_ray_losses(
-        self, renders: Renders, rays: RayBatch
-    ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
-        """Lcolor on main coarse, main fine and each augmentation; L_ap, L_av, L_cfc with their reliability masks
-        (free, not even the mask, while a term's weight is 0: the warm-up). Also returns the masks' fractions of
-        +1 / -1 / 0 rays, by "<loss name>/<plus|minus|zero>"."""
-        augmented = list(renders.augmented.values())
-        losses = {"color": color_loss([renders.main.coarse, renders.main.fine, *augmented], rays.rgb)}
-        masks = {}
-        for pair in self.depth_pairs(renders):
-            if self.loss_weights[pair.name] > 0:
-                losses[pair.name], fractions = self.masked_depth_loss(pair, rays)
-                masks.update({f"{pair.name}/{k}": v for k, v in fractions.items()})
-        return losses, masks
-
-    def sparse_ray_losses(self, renders: Renders, rays: SparseDepthBatch | None) -> dict[str, torch.Tensor]:
-        """Lsd on main fine and each augmentation (not main coarse), and the release's unmasked part of L_cfc."""
-        if rays is None:
-            return {}
-        fine_and_augmented = [renders.main.fine, *renders.augmented.values()]
-        losses = {"sparse_depth": sparse_depth_loss(fine_and_augmented, rays.depth, rays.weight)}
-        cfc_on = self.coarse_fine_mask is not None and self.loss_weights["cfc"] > 0
-        if cfc_on and self.hparams.coarse_fine_on_sparse_rays:
-            losses["cfc"] = coarse_fine_sparse_loss(renders.main.coarse, renders.main.fine)
-        return losses
-
-    def weighted(self, losses: dict[str, torch.Tensor], regularize: bool = False) -> torch.Tensor:
-        """sum of loss_weights[name] * term, plus (with `regularize`) the fields' own regularisers, which are then
-        logged as the term "regularization"."""
-        total = sum((self.loss_weights[name] * value for name, value in losses.items()),
-                    torch.zeros((), device=self.device))
-        if regularize and (regularization := self.field_regularization()) is not None:
-            losses["regularization"] = regularization
-            total = total + regularization
-        return total
-
-    def depth_pairs(self, renders: Renders) -> list[DepthPair]:
-        """Every masked depth loss of these renders: L_ap, L_av, ... (one per augmentation), then L_cfc."""
-        pairs = [DepthPair(aug.name, aug.mask, aug.main_output(renders.main), renders.augmented[aug.name])
-                 for aug in self.augmentations]
-        if self.coarse_fine_mask is not None:
-            pairs.append(DepthPair("cfc", self.coarse_fine_mask, renders.main.coarse, renders.main.fine))
-        return pairs
-
-    def masked_depth_loss(self, pair: DepthPair, rays: RayBatch) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """The masked depth loss of one pair on train rays `rays`, and the fractions of its mask values (none when
-        the mask trusts every ray)."""
-        assert self.train_views is not None, "on_fit_start did not run"
-        mask = pair.mask(self.train_views, rays, pair.main.depth.detach(), pair.other.depth.detach())
-        z_main, z_other = pair.main.depth, pair.other.depth
-        if self.hparams.depth_loss_space == "inverse":
-            z_main, z_other = 1.0 / z_main.clamp_min(1e-6), 1.0 / z_other.clamp_min(1e-6)
-        fractions = {} if mask is None else mask_fractions(mask)
-        return masked_depth_loss(z_main, z_other, mask, self.hparams.supervision), fractions
-
-    def field_regularization(self) -> torch.Tensor | None:
-        """The sum of every field's own regulariser (`Field.regularization`), or None when no field has one."""
-        fields = [self.nerf.coarse, self.nerf.fine, *(aug.field for aug in self.augmentations)]
-        terms = [t for t in (f.regularization() for f in fields) if t is not None]
-        return sum(terms) if terms else None
-
-    def render_frame(self, frame: Frame) -> dict[str, torch.Tensor]:
+    def render_frame(self, frame: Frame) -> FrameRender:
         """Deterministic full-frame render: rgb [H, W, 3], depth [H, W], accumulation [H, W], coarse_depth [H, W]."""
-        out = self.nerf.render_rays_chunked(frame.rays, self.hparams.chunk)
-        return {k: v.reshape(frame.height, frame.width, *v.shape[1:]) for k, v in out.items()}
+        return self.nerf.render_rays_chunked(frame.rays, self.hparams.chunk).reshape(frame.height, frame.width)
 
-    def validation_step(self, batch: Frame, batch_idx: int) -> dict[str, torch.Tensor]:
+    def validation_step(self, batch: Frame, batch_idx: int) -> FrameRender:
         pred = self.render_frame(batch)
-        frame_psnr = psnr(pred["rgb"][None], batch.rgb.reshape(pred["rgb"].shape)[None])[0]  # 8-bit, as in test
+        frame_psnr = psnr(pred.rgb[None], batch.rgb.reshape(pred.rgb.shape)[None])[0]  # 8-bit, as in test
         self.log("val/psnr", frame_psnr, prog_bar=True, batch_size=1, sync_dist=True)
         return pred
 
     @torch.no_grad()
     def reliability_maps(self, view: int) -> dict[str, torch.Tensor]:
         """Masks [H, W] in {-1, 0, +1} of each augmentation and of L_cfc on train view `view`, at every pixel."""
-        assert self.train_views is not None, "on_fit_start did not run"
+        assert self.train_views is not None, "set_train_views was not called"
         views, chunk = self.train_views, self.hparams.chunk
         h, w = views.height, views.width
         uv = pixel_grid(h, w, self.device)
@@ -293,16 +253,17 @@ class SimpleNeRF(L.LightningModule):
             part_view, part_uv = index[start : start + chunk], uv[start : start + chunk]
             rays = RayBatch(views.rays(part_view, part_uv, self.nerf.near), views.images[part_view, part_uv[:, 1],
                             part_uv[:, 0]], part_view, part_uv)  # fmt: skip
-            for pair in self.depth_pairs(self.render(rays.rays, randomized=False)):
-                m = pair.mask(views, rays, pair.main.depth, pair.other.depth)
+            renders, errors = self.render(rays.rays, randomized=False), ReprojectionErrors(views, rays)
+            for term in (t for t in self.terms.values() if isinstance(t, MaskedDepthTerm)):
+                m = term.mask.judge(errors, term.main, renders[term.main].depth, term.other, renders[term.other].depth)
                 if m is not None:
-                    maps.setdefault(pair.name, []).append(m)
+                    maps.setdefault(term.name, []).append(m)
         return {name: torch.cat(parts).reshape(h, w) for name, parts in maps.items()}
 
-    def test_step(self, batch: Frame, batch_idx: int) -> dict[str, torch.Tensor]:
+    def test_step(self, batch: Frame, batch_idx: int) -> FrameRender:
         return self.render_frame(batch)
 
-    def predict_step(self, batch: Frame, batch_idx: int) -> dict[str, torch.Tensor]:
+    def predict_step(self, batch: Frame, batch_idx: int) -> FrameRender:
         return self.render_frame(batch)
 
     def configure_optimizers(self):

@@ -216,6 +216,8 @@ def time_training(
         raise ValueError(f"need steps >= 1 and warmup >= 0, got {steps}, {warmup}")
     timer = StepTimer()
     trainer = measuring_trainer(precision, accelerator, devices, max_steps=warmup + steps, callbacks=[timer])
+    datamodule.setup("fit")
+    model.set_train_views(datamodule.train_views)
     trainer.fit(model, datamodule)
     timed = timer.iteration_s[warmup:]
     if len(timed) < steps:
@@ -248,7 +250,7 @@ def time_training(
         rss_at_start_gib=timer.rss_at_start_gib,
         **cuda_peaks(model.device),
         device=device_name(model.device),
-        loss_weights={k: float(v) for k, v in getattr(model, "loss_weights", {}).items()},
+        loss_weights={name: float(term.weight) for name, term in model.terms.items()},
         losses={k.removeprefix("train/loss_"): float(v) for k, v in trainer.callback_metrics.items()
                 if k.startswith("train/loss_")},
     )

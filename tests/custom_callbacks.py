@@ -15,7 +15,7 @@ class PoisonLossAt(L.Callback):
 
     def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
         if trainer.global_step == self.step:
-            pl_module.loss_weights["color"] = float("nan")
+            pl_module.terms["color"].weight = float("nan")
 
 
 class LossLog(L.Callback):
@@ -42,3 +42,18 @@ class SlowTest(L.Callback):
 
         print(f"frame {batch_idx} done", flush=True)
         time.sleep(self.seconds)
+
+
+class StepRecord(L.Callback):
+    """Appends `rank step checksum terms` after every training step to the file `path`: the sum of the model's
+    parameters (exact, as hex) and the logged loss terms, so that ranks can be compared after DDP steps."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+
+        total = sum(p.detach().double().sum() for p in pl_module.parameters())
+        terms = ",".join(sorted(k for k in trainer.callback_metrics if k.startswith("train/loss_")))
+        with open(self.path, "a") as f:
+            f.write(f"{trainer.global_rank} {trainer.global_step} {float(total).hex()} {terms}\n")

@@ -45,10 +45,10 @@ def test_override_parses_on_top_of_the_paper_config(override):
 def test_dsnerf_is_simplenerf_without_its_regularisers():
     llff, dsnerf = parse(CONFIG_DIR / "llff.yaml").as_dict(), parse(CONFIG_DIR / "dsnerf.yaml").as_dict()
     assert dsnerf["data"]["init_args"]["sparse_rays_per_batch"] == 2048
-    assert dsnerf["model"]["sparse_depth_weight"] == 0.1
-    assert len(llff["model"]["augmentations"]) == 2 and llff["model"]["coarse_fine_mask"] is not None
-    for key in ("augmentations", "coarse_fine_mask"):
-        llff["model"][key] = dsnerf["model"][key]
+    assert dsnerf["model"]["objective"]["sparse_depth_weight"] == 0.1
+    assert len(llff["model"]["augmentations"]) == 2 and llff["model"]["objective"]["coarse_fine_mask"] is not None
+    llff["model"]["augmentations"] = dsnerf["model"]["augmentations"]
+    llff["model"]["objective"]["coarse_fine_mask"] = dsnerf["model"]["objective"]["coarse_fine_mask"]
     for section in ("trainer", "checkpoint", "config"):  # run folders and the warm-up callback differ by design
         dsnerf[section], llff[section] = None, None
     assert dsnerf == llff
@@ -104,21 +104,21 @@ def test_ablation_changes_only_what_it_ablates(name):
     paper_flat, ablated_flat = flatten(paper), flatten(ablated)
     changed = {k for k in paper_flat.keys() | ablated_flat.keys() if paper_flat.get(k) != ablated_flat.get(k)}
     changed -= {"config.0", "config.1"}
-    allowed = ("model.augmentations.", "model.coarse_fine_mask", "trainer.callbacks.")
+    allowed = ("model.augmentations.", "model.objective.coarse_fine_mask", "trainer.callbacks.")
     assert changed and all(k.startswith(allowed) for k in changed), sorted(changed)
     augs = ablated["model"]["augmentations"]
-    fields = [a["init_args"]["field"]["init_args"] for a in augs]
+    fields = [a["init_args"]["field"] and a["init_args"]["field"]["init_args"] for a in augs]  # None: a preset's
     if name == "identical_aug":
         assert all(f == fields[0] for f in fields)
         assert fields[0]["density_bands"] is None and fields[0]["view_dependent"]
     if name == "smaller_network":
         assert fields[0]["num_layers"] == 4 and fields[0]["density_bands"] is None
     if name == "no_coarse_fine":
-        assert ablated["model"]["coarse_fine_mask"] is None
+        assert ablated["model"]["objective"]["coarse_fine_mask"] is None
         assert [a["init_args"]["stage"] for a in augs] == ["coarse", "coarse", "fine", "fine"]
     if mask:
         assert all(a["init_args"]["mask"]["class_path"].endswith(mask) for a in augs)
-        assert ablated["model"]["coarse_fine_mask"]["class_path"].endswith(mask)
+        assert ablated["model"]["objective"]["coarse_fine_mask"]["class_path"].endswith(mask)
 
 
 @pytest.mark.parametrize("sweep", SWEEPS, ids=lambda p: str(p.relative_to(CONFIG_DIR)))

@@ -5,7 +5,7 @@ import torch
 
 from simplenerf.data.batches import TrainingBatch
 from simplenerf.data.synthetic import SyntheticDataModule
-from simplenerf.errors import SimpleNeRFError
+from simplenerf.method.objective import Objective
 from simplenerf.model.nerf import mlp_nerf
 from simplenerf.module import SimpleNeRF
 
@@ -25,42 +25,47 @@ def batch(datamodule):
     return next(iter(datamodule.train_dataloader()))
 
 
-def module(**weights) -> SimpleNeRF:
+def module(**objective) -> SimpleNeRF:
     torch.manual_seed(0)
-    return SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, num_layers=2, width=16, skip_layer=1), **weights)
+    return SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, num_layers=2, width=16, skip_layer=1),
+                      objective=Objective(**objective))
+
+
+def step(model: SimpleNeRF, batch: TrainingBatch, monkeypatch) -> tuple[torch.Tensor, dict]:
+    """A training step without its optimiser: the parts backpropagated (gradients in `.grad`); the total loss and
+    what the step logs."""
+    logged = {}
+    monkeypatch.setattr(model, "log_dict", lambda values, **kw: logged.update(values))
+    monkeypatch.setattr(model, "log", lambda *a, **kw: None)
+    result = model.backward_parts(batch, torch.Tensor.backward)
+    model.log_step(result, batch)
+    return result.loss, logged
 
 
 def test_loss_is_the_weighted_sum_of_its_terms(batch, monkeypatch):
     model = module(color_weight=1.0, sparse_depth_weight=0.1)
-    logged = {}
-    monkeypatch.setattr(model, "log_dict", lambda values, **kw: logged.update(values))
-    monkeypatch.setattr(model, "log", lambda *a, **kw: None)
-    loss = model.training_step(batch, 0)
+    loss, logged = step(model, batch, monkeypatch)
     expected = logged["train/loss_color"] + 0.1 * logged["train/loss_sparse_depth"]
     assert torch.allclose(loss, expected)
     assert logged["train/loss_sparse_depth"] > 0
+    assert logged["train_params/color"] == 1.0 and logged["train_params/sparse_depth"] == 0.1  # the weights too
 
 
 def test_sparse_depth_loss_trains_fine_not_coarse(batch, monkeypatch):
     model = module(color_weight=0.0, sparse_depth_weight=1.0)
-    monkeypatch.setattr(model, "log_dict", lambda *a, **kw: None)
-    monkeypatch.setattr(model, "log", lambda *a, **kw: None)
-    model.training_step(batch, 0).backward()
+    _, logged = step(model, batch, monkeypatch)
+    assert "train/loss_color" not in logged  # a term of weight 0 is not computed
     assert model.nerf.fine.trunk[0].weight.grad.abs().sum() > 0
     coarse_grad = model.nerf.coarse.trunk[0].weight.grad
     assert coarse_grad is None or coarse_grad.abs().sum() == 0
 
 
 def test_without_sparse_rays_only_colour_counts(batch, monkeypatch):
-    model = module()
-    logged = {}
-    monkeypatch.setattr(model, "log_dict", lambda values, **kw: logged.update(values))
-    monkeypatch.setattr(model, "log", lambda *a, **kw: None)
-    loss = model.training_step(TrainingBatch(batch.random), 0)
+    loss, logged = step(module(), TrainingBatch(batch.random), monkeypatch)
     assert "train/loss_sparse_depth" not in logged and torch.allclose(loss, logged["train/loss_color"])
 
 
-def simplenerf_module(supervision: str = "bidirectional", **weights) -> SimpleNeRF:
+def simplenerf_module(supervision: str = "bidirectional", rays_per_backward: int | None = None) -> SimpleNeRF:
     from simplenerf.method.augmentations import Augmentation
     from simplenerf.method.reliability import PatchReprojectionMask
     from simplenerf.model.fields import RadianceField
@@ -72,23 +77,14 @@ def simplenerf_module(supervision: str = "bidirectional", **weights) -> SimpleNe
                      PatchReprojectionMask(error_threshold=1.0)),
         Augmentation("views", RadianceField(view_dependent=False, **size), PatchReprojectionMask(error_threshold=1.0)),
     ]
-    return SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, **size), augmentations=augs,
-                      coarse_fine_mask=PatchReprojectionMask(error_threshold=1.0), supervision=supervision, **weights)
-
-
-class FakeTrainer:
-    def __init__(self, dm):
-        self.datamodule = dm
+    objective = Objective(coarse_fine_mask=PatchReprojectionMask(error_threshold=1.0), supervision=supervision)
+    return SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, **size), augmentations=augs, objective=objective,
+                      rays_per_backward=rays_per_backward)
 
 
 def run_step(model, dm, monkeypatch) -> tuple[torch.Tensor, dict]:
-    logged = {}
-    monkeypatch.setattr(model, "log_dict", lambda values, **kw: logged.update(values))
-    monkeypatch.setattr(model, "log", lambda *a, **kw: None)
-    monkeypatch.setattr(type(model), "trainer", property(lambda self: FakeTrainer(dm)))
-    model.on_fit_start()
-    batch = next(iter(dm.train_dataloader()))
-    return model.training_step(batch, 0), logged
+    model.set_train_views(dm.train_views)
+    return step(model, next(iter(dm.train_dataloader())), monkeypatch)
 
 
 def test_masked_losses_cost_nothing_before_the_warm_up(datamodule, monkeypatch):
@@ -96,10 +92,10 @@ def test_masked_losses_cost_nothing_before_the_warm_up(datamodule, monkeypatch):
 
     model = simplenerf_module()
     for name in ("points", "views", "cfc"):
-        model.loss_weights[name] = 0.0
+        model.terms[name].weight = 0.0
     calls = []
-    original = reliability.PatchReprojectionMask.__call__
-    monkeypatch.setattr(reliability.PatchReprojectionMask, "__call__",
+    original = reliability.ReprojectionErrors.__call__
+    monkeypatch.setattr(reliability.ReprojectionErrors, "__call__",
                         lambda self, *a: calls.append(1) or original(self, *a))
     loss, logged = run_step(model, datamodule, monkeypatch)
     assert calls == []  # no mask computed
@@ -116,7 +112,6 @@ def test_all_paper_losses_after_the_warm_up(datamodule, monkeypatch):
     for name in ("points", "views", "cfc"):
         fractions = [logged[f"train/mask_{name}/{k}"] for k in ("plus", "minus", "zero")]
         assert torch.allclose(sum(fractions), torch.tensor(1.0))
-    loss.backward()
     for aug in model.augmentations:  # the augmented fields are trained (colour, L_sd and their masked loss)
         assert aug.field.trunk[0].weight.grad.abs().sum() > 0
 
@@ -170,19 +165,18 @@ def test_reliability_maps_of_a_train_view(datamodule, monkeypatch):
     assert picture.shape == (1, 3, 3) and picture[0, :, 0].tolist() == [0, 128, 255]
 
 
-def test_backward_in_parts_gives_the_one_pass_loss_gradient_and_logs(datamodule, monkeypatch):
-    """Random rays then sparse-depth rays in separate backward passes, whole or in parts of at most
-    `rays_per_backward` rays (uneven here): the same total loss, gradient and logged terms and mask fractions as one
-    pass (rendering made deterministic here, since the ways draw jitter and noise in a different order)."""
+def test_parts_give_the_one_part_loss_gradient_and_logs(datamodule, monkeypatch):
+    """One part (the whole batch), random rays then sparse-depth rays whole (parts of 10^6 rays), and parts of at most
+    23 rays (uneven here): the same total loss, gradient and logged terms and mask fractions (rendering made
+    deterministic here, since the ways draw jitter and noise in a different order)."""
     results = []
-    for per_part, rays_per_backward in ((False, None), (True, None), (True, 23)):
-        model = simplenerf_module(backward_per_part=per_part, rays_per_backward=rays_per_backward)
+    for rays_per_backward in (None, 10**6, 23):
+        model = simplenerf_module(rays_per_backward=rays_per_backward)
         render = model.render
         monkeypatch.setattr(model, "render", lambda rays, randomized, color=True, f=render: f(rays, False, color))
         loss, logged = run_step(model, datamodule, monkeypatch)
-        loss.backward()
         grads = torch.cat([p.grad.flatten() for p in model.parameters() if p.grad is not None])
-        results.append((loss.detach(), grads, {k: float(v.detach()) for k, v in logged.items()}))
+        results.append((loss, grads, {k: float(v) for k, v in logged.items()}))
     loss_a, grad_a, logged_a = results[0]
     assert {"train/loss_sparse_depth", "train/loss_cfc", "train/loss_points", "train/mask_cfc/plus"} <= set(logged_a)
     assert sum(logged_a[f"train/mask_views/{k}"] for k in ("plus", "minus", "zero")) == pytest.approx(1.0)
@@ -191,10 +185,31 @@ def test_backward_in_parts_gives_the_one_pass_loss_gradient_and_logs(datamodule,
         assert grad_a.shape == grad_b.shape and torch.allclose(grad_a, grad_b, rtol=1e-4, atol=1e-7)
 
 
-@pytest.mark.parametrize("per_part, rays", [(False, 1024), (True, 0)])
-def test_rays_per_backward_is_not_silently_ignored(per_part, rays):
-    with pytest.raises(SimpleNeRFError, match=f"model.rays_per_backward {rays} needs model.backward_per_part true"):
-        simplenerf_module(backward_per_part=per_part, rays_per_backward=rays)
+def test_batch_parts_split_random_then_sparse_rays_by_share(batch):
+    from simplenerf.module import batch_parts
+
+    whole = batch_parts(batch, None)
+    assert len(whole) == 1 and whole[0].random is batch.random and whole[0].sparse is batch.sparse
+    parts = batch_parts(batch, 24)  # 64 random rays, 16 sparse
+    assert [(p.random is not None, p.sparse is not None) for p in parts] == [(True, False)] * 3 + [(False, True)]
+    assert [p.random_share for p in parts[:3]] == [24 / 64, 24 / 64, 16 / 64] and parts[3].sparse_share == 1.0
+    assert torch.equal(torch.cat([p.random.uv for p in parts[:3]]), batch.random.uv)
+
+
+def test_the_main_coarse_reprojection_error_is_computed_once_per_part(datamodule, monkeypatch):
+    from simplenerf.method import reliability
+
+    model = simplenerf_module(rays_per_backward=40)  # random rays in 2 parts
+    computed = []
+    original = reliability._reprojection_error
+    monkeypatch.setattr(reliability, "_reprojection_error", lambda *a, **k: computed.append(1) or original(*a, **k))
+    judged = []
+    judge = reliability.ReprojectionErrors.__call__
+    monkeypatch.setattr(reliability.ReprojectionErrors, "__call__",
+                        lambda self, name, *a: judged.append(name) or judge(self, name, *a))
+    run_step(model, datamodule, monkeypatch)
+    assert judged == ["coarse", "points", "coarse", "views", "coarse", "fine"] * 2  # three pairs judge main coarse
+    assert len(computed) == 4 * 2  # its error once per part: coarse, points, views, fine
 
 
 def test_ray_slices_cover_the_rays_in_parts_of_at_most_size():
@@ -205,26 +220,55 @@ def test_ray_slices_cover_the_rays_in_parts_of_at_most_size():
 
 
 @pytest.mark.parametrize("space", ["metric", "inverse"])
-def test_masked_depth_losses_compare_metric_or_inverse_depth(space, monkeypatch):
+def test_masked_depth_losses_compare_metric_or_inverse_depth(space):
     """`depth_loss_space`: the masked losses compare z or 1 / z; the mask itself always sees metric depth."""
-    from simplenerf.model.rendering import RenderOutputs
-    from simplenerf.module import DepthPair
+    from types import SimpleNamespace
 
-    model = module(supervision="bidirectional", depth_loss_space=space)
-    model.train_views = object()  # the stub mask below does not look at the views
+    from simplenerf.method.objective import MaskedDepthTerm, RenderedRays
+    from simplenerf.method.reliability import ReliabilityMask
+    from simplenerf.model.rendering import RenderOutputs
+
     seen = {}
 
-    def mask(views, rays, z_main, z_other):
-        seen["z"] = (z_main, z_other)
-        return torch.tensor([1.0, -1.0, 0.0, 1.0])
+    class Stub(ReliabilityMask):  # does not look at the views
+        def __call__(self, views, rays, z_main, z_other):
+            seen["z"] = (z_main, z_other)
+            return torch.tensor([1.0, -1.0, 0.0, 1.0])
 
     def render(depth):
         return RenderOutputs(None, torch.tensor(depth), torch.ones(4), torch.ones(4, 1))
 
-    pair = DepthPair("points", mask, render([2.0, 4.0, 8.0, 1.0]), render([4.0, 2.0, 100.0, 1.0]))
-    loss, fractions = model.masked_depth_loss(pair, rays=None)
-    assert {k: v.item() for k, v in fractions.items()} == {"plus": 0.5, "minus": 0.25, "zero": 0.25}
+    outputs = {"coarse": render([2.0, 4.0, 8.0, 1.0]), "points": render([4.0, 2.0, 100.0, 1.0])}
+    renders = type("R", (), {"__getitem__": lambda self, name: outputs[name]})()
+    term = MaskedDepthTerm("points", 0.1, Stub(), "coarse", "points", "bidirectional", space)
+    result = term.value(RenderedRays("random", None, renders, 1.0, SimpleNamespace(views=None, rays=None)))
+    assert {k: v.item() for k, v in result.masks.items()} == {"plus": 0.5, "minus": 0.25, "zero": 0.25}
     assert seen["z"][0].tolist() == [2.0, 4.0, 8.0, 1.0]
     # rays with mask +1 and -1 count, the mask-0 ray (metric error 92) does not; the mean is over all 4 rays
     expected = (4.0 + 4.0 + 0.0 + 0.0) / 4 if space == "metric" else ((0.5 - 0.25) ** 2 + (0.25 - 0.5) ** 2) / 4
-    assert loss.item() == pytest.approx(expected)
+    assert result.value.item() == pytest.approx(expected)
+
+
+def test_a_scheduled_tv_weight_is_applied_and_logged(batch, monkeypatch):
+    """A grid's total variation is a term (`tv_<field>`): a `LossWeightSchedule` sets its weight, the step adds
+    weight * TV to the loss and logs both the TV and its weight."""
+    from types import SimpleNamespace
+
+    from simplenerf.callbacks import LossWeightSchedule
+    from simplenerf.model.grid import KPlanesField
+    from simplenerf.model.nerf import NeRF
+
+    torch.manual_seed(0)
+    grid = {"resolutions": [8, 16], "features": 4, "hidden": 8}
+    nerf = NeRF(KPlanesField(**grid, tv_weight=0.01), KPlanesField(**grid, tv_weight=0.01), num_coarse=8, num_fine=8)
+    model = SimpleNeRF(nerf)
+    assert {"tv_coarse", "tv_fine"} <= set(model.terms) and model.terms["tv_fine"].weight == 0.01
+    schedule = LossWeightSchedule({"tv_fine": [(0, 0.5), (2, 0.25)]})
+    schedule.on_train_batch_start(SimpleNamespace(global_step=2), model, batch, 0)
+    assert model.terms["tv_fine"].weight == 0.25 and model.terms["tv_coarse"].weight == 0.01
+    loss, logged = step(model, batch, monkeypatch)
+    assert logged["train_params/tv_fine"] == 0.25 and logged["train_params/tv_coarse"] == 0.01
+    assert logged["train/loss_tv_fine"] == nerf.fine.regularization("tv").detach() > 0
+    expected = (logged["train/loss_color"] + 0.1 * logged["train/loss_sparse_depth"]
+                + 0.01 * logged["train/loss_tv_coarse"] + 0.25 * logged["train/loss_tv_fine"])
+    assert torch.allclose(loss, expected)

@@ -65,6 +65,8 @@ def demo_losses(workdir: Path, steps: int = STEPS) -> list[dict[str, float]]:
     ]  # fmt: skip
     torch.set_num_threads(torch.get_num_threads())
     cli = make_cli(args, run=False)
+    cli.datamodule.setup("fit")
+    cli.model.set_train_views(cli.datamodule.train_views)  # as the CLI's fit does
     recorder = RecordLosses()
     cli.trainer.callbacks.append(recorder)
     try:

@@ -2,8 +2,9 @@
 
 The release's step is its own `Trainer01.Trainer.train_one_iter` (sub-batches of `sub_batch_size` rays, a backward per
 sub-batch, then `optimizer.step()`), fed a batch that its data preprocessor made (`get_next_batch`). Ours is our
-`SimpleNeRF.training_step` (the paper config's `backward_per_part`: random rays, then sparse rays, each rendered and
-backpropagated; Lightning's backward of the returned loss is done here), then our optimiser's step. What is captured:
+`SimpleNeRF.backward_parts` (what `training_step` runs before its optimiser step: with `rays_per_backward` 2048,
+random rays, then sparse rays, each rendered and backpropagated, as the release's sub-batches), then our optimiser's
+step. What is captured:
 
 - outputs: the release's `SimpleNeRF.forward` returns (per-sample sigma and rgb, weights, rendered rgb, depth and
   accumulation of each MLP); ours from `SimpleNeRF.render`, `NeRF.evaluate` and the density function.
@@ -172,12 +173,12 @@ def our_optimizer(module, step: int) -> torch.optim.Optimizer:
 
 
 def run_our_step(module, batch, draws: list[randomness.Draws], optimizer: torch.optim.Optimizer) -> StepRecord:
-    """Our `training_step` (+ the backward Lightning would do) and `optimizer.step()`, with the release's draws."""
+    """Our step (`backward_parts`, then `optimizer.step()`), with the release's draws."""
+    import simplenerf.method.objective as objective_module
     import simplenerf.model.nerf as nerf_module
-    import simplenerf.module as module_module
 
     record = StepRecord()
-    density, masked = nerf_module.density, module_module.masked_depth_loss
+    density, masked = nerf_module.density, objective_module.masked_depth_loss
     evaluate, render = module.nerf.evaluate, module.render
     calls: list[tuple[torch.Tensor, torch.Tensor | None]] = []  # per field call: (sigma, rgb)
     pending_rgb: list[torch.Tensor | None] = []
@@ -221,20 +222,18 @@ def run_our_step(module, batch, draws: list[randomness.Draws], optimizer: torch.
 
     logged: dict[str, torch.Tensor] = {}
     module.nerf.evaluate, module.render = capture_evaluate, capture_render
-    nerf_module.density, module_module.masked_depth_loss = capture_density, capture_masked
+    nerf_module.density, objective_module.masked_depth_loss = capture_density, capture_masked
     module.log_dict = lambda values, **kwargs: logged.update(values)
     module.log = lambda name, value, **kwargs: logged.__setitem__(name, value)
     module.zero_grad(set_to_none=True)
     try:
         with randomness.replaying(draws, [aug.name for aug in module.augmentations]):
-            loss = module.training_step(batch, 0)
-            loss.backward()  # Lightning's automatic optimisation: backward of the returned loss
+            module.log_step(module.backward_parts(batch, torch.Tensor.backward), batch)
     finally:
         del module.nerf.evaluate, module.render, module.log_dict, module.log
-        nerf_module.density, module_module.masked_depth_loss = density, masked
-    names = [n for n in ("points", "views", "cfc") if n in module.loss_weights and module.loss_weights[n] > 0]
-    names = [n for n in names if n != "cfc" or module.coarse_fine_mask is not None]
-    # One forward of random rays: one call per masked loss, in `depth_pairs` order.
+        nerf_module.density, objective_module.masked_depth_loss = density, masked
+    names = [n for n in ("points", "views", "cfc") if n in module.terms and module.terms[n].weight > 0]
+    # One forward of random rays: one call per masked loss, in the order of `module.terms`.
     for i, mask in enumerate(mask_calls):
         record.masks.setdefault(names[i % len(names)], []).append(mask)
     record.losses = {k.removeprefix("train/loss_"): float(v) for k, v in logged.items() if k.startswith("train/loss_")}

@@ -43,7 +43,7 @@ def run_trajectory(run, module, num_steps: int, seed: int, group: str, loss_rtol
         if name in run.loss_computer.losses:
             run.loss_computer.losses[name].loss_configs["iter_weights"] = {"0": 0.1}
     for name in ("points", "views", "cfc"):
-        module.loss_weights[name] = 0.1
+        module.terms[name].weight = 0.1
     mapping = copy_release_weights(run.model, module)
     twin = ulp_perturbed(module)
     twin_optimizer = twin.configure_optimizers()

@@ -99,7 +99,7 @@ def main(argv: Sequence[str]) -> dict:
 
 def warn_zero_weights(model: nn.Module) -> None:
     """Says on stderr which losses are off (weight 0): they are skipped, so the step is cheaper than the paper's."""
-    zero = sorted(name for name, w in getattr(model, "loss_weights", {}).items() if not w)
+    zero = sorted(name for name, term in model.terms.items() if not term.weight)
     if zero:
         print(f"benchmark: note: losses with weight 0 are skipped: {zero}", file=sys.stderr)
 

@@ -68,8 +68,8 @@ def open_viewer(argv: list[str]) -> Viewer:
     finally:
         held.release(emit=False)
     model, data = cli.model, cli.datamodule
-    if model.needs_masks:  # what `SimpleNeRF.on_fit_start` sets for training; `reliability_maps` reads it
-        model.train_views = data.train_views.to(args.device)
+    if model.needs_masks:  # what the CLI hands a fit; `reliability_maps` reads it
+        model.set_train_views(data.train_views.to(args.device))
     sparse = data.load_sparse_depth() if data.sparse_rays_per_batch else None  # cached by the fit
     out = Path(args.out) if args.out else folder / "viewer"
     print(f"viewer: {checkpoint}", flush=True)

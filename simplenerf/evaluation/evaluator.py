@@ -26,6 +26,7 @@ from simplenerf.errors import DataError, RunFolderError
 from simplenerf.evaluation.visibility import MIN_VIEWS, scene_visibility_masks
 from simplenerf.metrics.lpips import LPIPS
 from simplenerf.metrics.scores import MASKED_METRIC_NAMES, METRIC_NAMES, PSNR_CAP, frame_scores
+from simplenerf.model.nerf import FrameRender
 from simplenerf.viz.pictures import colorize_depth, write_mask_png, write_png
 
 METRICS = METRIC_NAMES
@@ -255,21 +256,21 @@ class Evaluator(L.Callback):
         return scene_visibility_masks(scene.views, scene.split.train, scene.split.test, self.min_views,
                                       progress=trainer.is_global_zero)
 
-    def _save_frame(self, name: str, pred: dict[str, torch.Tensor]) -> None:
+    def _save_frame(self, name: str, pred: FrameRender) -> None:
         assert self._partial is not None
-        depth = pred["depth"].float().cpu().numpy()
-        write_png(self._partial / "rgb" / f"{name}.png", pred["rgb"].float().cpu().numpy())
+        depth = pred.depth.float().cpu().numpy()
+        write_png(self._partial / "rgb" / f"{name}.png", pred.rgb.float().cpu().numpy())
         np.save(self._partial / "depth" / f"{name}.npy", depth)
         write_png(self._partial / "depth" / f"{name}.png", colorize_depth(depth))
 
     def on_test_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
-        target = batch.rgb.reshape(outputs["rgb"].shape)
-        gt_depth = batch.depth.reshape(outputs["depth"].shape) if batch.depth is not None else None
+        target = batch.rgb.reshape(outputs.rgb.shape)
+        gt_depth = batch.depth.reshape(outputs.depth.shape) if batch.depth is not None else None
         if self.lpips_net is not None:
-            self.lpips_net.to(outputs["rgb"].device)
+            self.lpips_net.to(outputs.rgb.device)
         index = int(batch.index)
         mask = self.masks.get(index)
-        scores = frame_scores(outputs["rgb"], target, outputs["depth"], gt_depth, self.lpips_net, mask)
+        scores = frame_scores(outputs.rgb, target, outputs.depth, gt_depth, self.lpips_net, mask)
         self.rows.append({"frame": batch.name, "index": index, **scores})
         for key, value in scores.items():
             if value is not None:

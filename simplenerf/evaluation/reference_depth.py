@@ -47,7 +47,7 @@ def export_reference_depth(model_nerf: nn.Module, scene: Scene, near: float, chu
         if skip_existing and _readable(path, (frame.height, frame.width)):
             written.append(path)
             continue
-        depth = model_nerf.render_rays_chunked(frame.rays.to(device), chunk)["depth"].reshape(frame.height, frame.width)
+        depth = model_nerf.render_rays_chunked(frame.rays.to(device), chunk).depth.reshape(frame.height, frame.width)
         np.save(path, (depth.double().cpu().numpy() / scene.scale).astype(np.float32))
         written.append(path)
     return written

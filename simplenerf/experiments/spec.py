@@ -59,7 +59,7 @@ class ModelEntry:
     configs: list[str] | dict[str, list[str]]
     """Config files in order (later ones override), or per scene format {llff: [...], realestate: [...]}."""
     args: list[str] = field(default_factory=list)
-    """CLI overrides for this model in every fit, e.g. ["--model.sparse_depth_weight", "0.2"]."""
+    """CLI overrides for this model in every fit, e.g. ["--model.objective.sparse_depth_weight", "0.2"]."""
 
 
 @dataclass

@@ -8,6 +8,10 @@ from its own `ReliabilityMask`. The simplifications themselves are configuration
 - views augmentation: `RadianceField(view_dependent=False)`;
 - ablations: identical augmentation `RadianceField()`, smaller network `RadianceField(num_layers=4, skip_layer=None)`.
 
+Presets with the paper's values, so a config need not restate them: `PointsAugmentation` and `ViewsAugmentation`
+(name, field, L_ap / L_av weight 0.1), and every augmentation's default mask, `PatchReprojectionMask()` (k = 5,
+e_tau = 0.1, Sec. 4.2 and the supplement).
+
 A new augmentation plugs in from YAML by `class_path`: any `Field` (an MLP, a grid, a user's own), or a subclass of
 `Augmentation` that overrides `render`.
 """
@@ -18,8 +22,8 @@ from typing import Literal
 
 from torch import nn
 
-from simplenerf.method.reliability import ReliabilityMask
-from simplenerf.model.fields import Field
+from simplenerf.method.reliability import PatchReprojectionMask, ReliabilityMask
+from simplenerf.model.fields import Field, RadianceField
 from simplenerf.model.nerf import NeRF, NeRFOutputs
 from simplenerf.model.rendering import RenderOutputs
 
@@ -31,21 +35,23 @@ class Augmentation(nn.Module):
         self,
         name: str,
         field: Field,
-        mask: ReliabilityMask,
+        mask: ReliabilityMask | None = None,
         depth_weight: float = 0.1,
         stage: Literal["coarse", "fine"] = "coarse",
     ) -> None:
         """
         Args:
-            name: loss name (`points` -> L_ap, `views` -> L_av); its weight is `loss_weights[name]` of the module.
+            name: name of its masked depth term (`points` -> L_ap, `views` -> L_av; `method.objective`).
             field: the simplified field (any `Field`), evaluated at the main model's samples.
-            mask: decides per ray which of the two depths supervises the other.
+            mask: decides per ray which of the two depths supervises the other; null: the paper's
+                `PatchReprojectionMask()` (k = 5, e_tau = 0.1). (`reliability.TrustAll` is "no mask".)
             depth_weight: lambda_3 / lambda_4, weight of the masked depth loss (a warm-up schedule may override it).
             stage: evaluated at the main model's coarse samples and tied to the coarse depth (the paper), or at the
                 fine samples and tied to the fine depth (the "w/o coarse-fine consistency" ablation adds those).
         """
         super().__init__()
-        self.name, self.field, self.mask, self.depth_weight, self.stage = name, field, mask, depth_weight, stage
+        self.name, self.field, self.depth_weight, self.stage = name, field, depth_weight, stage
+        self.mask = mask if mask is not None else PatchReprojectionMask()
 
     def render(self, nerf: NeRF, main: NeRFOutputs, randomized: bool) -> RenderOutputs:
         """Renders the augmentation along the rays of `main`, at the main model's samples of its stage."""
@@ -55,3 +61,50 @@ class Augmentation(nn.Module):
     def main_output(self, main: NeRFOutputs) -> RenderOutputs:
         """The main model's render this augmentation is tied to."""
         return main.coarse if self.stage == "coarse" else main.fine
+
+
+class PointsAugmentation(Augmentation):
+    """The paper's points augmentation (Sec. 4.1, L_ap): by default the paper's MLP whose density sees gamma(p, 0, 3)
+    only, the other bands going to the colour branch."""
+
+    def __init__(
+        self,
+        name: str = "points",
+        field: Field | None = None,
+        mask: ReliabilityMask | None = None,
+        depth_weight: float = 0.1,
+        stage: Literal["coarse", "fine"] = "coarse",
+    ) -> None:
+        """
+        Args:
+            name: name of its masked depth term (L_ap).
+            field: the simplified field; null: `RadianceField(density_bands=3, residual_bands_to_color=True)`.
+            mask: null: the paper's `PatchReprojectionMask()`.
+            depth_weight: lambda_3.
+            stage: the main model's samples it is evaluated at and the depth it is tied to (the paper: coarse).
+        """
+        field = field if field is not None else RadianceField(density_bands=3, residual_bands_to_color=True)
+        super().__init__(name, field, mask, depth_weight, stage)
+
+
+class ViewsAugmentation(Augmentation):
+    """The paper's views augmentation (Sec. 4.1, L_av): by default the paper's MLP without view directions."""
+
+    def __init__(
+        self,
+        name: str = "views",
+        field: Field | None = None,
+        mask: ReliabilityMask | None = None,
+        depth_weight: float = 0.1,
+        stage: Literal["coarse", "fine"] = "coarse",
+    ) -> None:
+        """
+        Args:
+            name: name of its masked depth term (L_av).
+            field: the simplified field; null: `RadianceField(view_dependent=False)`.
+            mask: null: the paper's `PatchReprojectionMask()`.
+            depth_weight: lambda_4.
+            stage: the main model's samples it is evaluated at and the depth it is tied to (the paper: coarse).
+        """
+        super().__init__(name, field if field is not None else RadianceField(view_dependent=False), mask, depth_weight,
+                         stage)

@@ -27,8 +27,8 @@ from simplenerf.data.batches import RayBatch
 from simplenerf.geometry.views import Views, nearest_views
 
 __all__ = [
-    "PatchReprojectionMask", "ReliabilityMask", "TrustAll", "mask_fractions", "masked_depth_loss", "nearest_views",
-    "patch_reprojection_error", "ternary_mask",
+    "PatchReprojectionMask", "ReliabilityMask", "ReprojectionErrors", "TrustAll", "mask_fractions",
+    "masked_depth_loss", "nearest_views", "patch_reprojection_error", "ternary_mask",
 ]  # fmt: skip
 
 Direction = Literal["bidirectional", "one_way"]
@@ -192,6 +192,33 @@ def masked_depth_loss(
     return loss.mean()
 
 
+class ReprojectionErrors:
+    """The patch reprojection errors (`patch_reprojection_error`) of depths of one batch of train rays, each computed
+    once: in a training step the main coarse depth is judged by three pairs (L_ap, L_av, L_cfc), and its error, like
+    the source patches, is shared by them."""
+
+    def __init__(self, views: Views, rays: RayBatch) -> None:
+        """
+        Args:
+            views: the train views. rays: R rays of them.
+        """
+        self.views, self.rays = views, rays
+        self._sources: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._errors: dict[tuple[str, int, bool], torch.Tensor] = {}
+
+    def __call__(self, name: str, depth: torch.Tensor, patch_size: int, require_in_front: bool = True) -> torch.Tensor:
+        """[R] error of depth [R] (inf where invalid); `name` says which render the depth is (e.g. "coarse"): the same
+        name with the same patch rule is computed once."""
+        key = (name, patch_size, require_in_front)
+        if key not in self._errors:
+            if patch_size not in self._sources:
+                self._sources[patch_size] = _source_patches(self.views.images, self.rays.view, self.rays.uv, patch_size)
+            source, inside = self._sources[patch_size]
+            self._errors[key], _ = _reprojection_error(self.views, self.rays, depth, source, inside, patch_size,
+                                                       require_in_front)
+        return self._errors[key]
+
+
 class ReliabilityMask(abc.ABC):
     """Decides, per ray, which of two depth estimates supervises the other (Sec. 4.2)."""
 
@@ -201,6 +228,13 @@ class ReliabilityMask(abc.ABC):
     ) -> torch.Tensor | None:
         """The ternary mask [R] (see `ternary_mask`) for depths z_main, z_other [R] of `rays` (of the train `views`),
         or None for "no mask": every ray is trusted and `masked_depth_loss` applies no stop-gradient."""
+
+    def judge(
+        self, errors: ReprojectionErrors, main: str, z_main: torch.Tensor, other: str, z_other: torch.Tensor
+    ) -> torch.Tensor | None:
+        """The mask in a training step, whose reprojection errors `errors` shares across its depth pairs; `main` and
+        `other` name the renders of z_main and z_other. By default the mask of `__call__`."""
+        return self(errors.views, errors.rays, z_main, z_other)
 
 
 class PatchReprojectionMask(ReliabilityMask):
@@ -226,14 +260,19 @@ class PatchReprojectionMask(ReliabilityMask):
         self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Reprojection errors of both depths, [R] each (inf where invalid), sharing one gather of the source patch."""
-        source, inside = _source_patches(views.images, rays.view, rays.uv, self.patch_size)
-        error_main, _ = _reprojection_error(views, rays, z_main, source, inside, self.patch_size, self.require_in_front)
-        error_other, _ = _reprojection_error(views, rays, z_other, source, inside, self.patch_size,
-                                             self.require_in_front)
-        return error_main, error_other
+        errors = ReprojectionErrors(views, rays)
+        return (errors("main", z_main, self.patch_size, self.require_in_front),
+                errors("other", z_other, self.patch_size, self.require_in_front))
 
     def __call__(self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor) -> torch.Tensor:
         return ternary_mask(*self.errors(views, rays, z_main, z_other), self.error_threshold)
+
+    def judge(
+        self, errors: ReprojectionErrors, main: str, z_main: torch.Tensor, other: str, z_other: torch.Tensor
+    ) -> torch.Tensor:
+        e_main = errors(main, z_main, self.patch_size, self.require_in_front)
+        e_other = errors(other, z_other, self.patch_size, self.require_in_front)
+        return ternary_mask(e_main, e_other, self.error_threshold)
 
 
 class TrustAll(ReliabilityMask):

@@ -48,10 +48,15 @@ class Field(nn.Module):
         rate); one group "mlp" by default. A grid returns e.g. {"grid": ..., "decoder": ...}."""
         return {"mlp": list(self.parameters())}
 
-    def regularization(self) -> torch.Tensor | None:
-        """The field's own weighted regulariser (e.g. total variation of a grid), added to the loss once per step;
-        None: none."""
-        return None
+    def regularizers(self) -> dict[str, float]:
+        """The field's own regularisers (e.g. a grid's total variation) by name, with their initial weights: each is a
+        term `<name>_<field>` of the objective (`method.objective`, e.g. `tv_fine`) whose weight a schedule may set
+        and the logger shows. None by default."""
+        return {}
+
+    def regularization(self, name: str) -> torch.Tensor:
+        """The unweighted value [] of the regulariser `name` (one of `regularizers()`), once per step."""
+        raise KeyError(f"{type(self).__name__} has no regulariser {name!r}")
 
 
 class RadianceField(Field):

@@ -90,7 +90,7 @@ class KPlanesField(Field):
         hidden: int = 64,
         geometry_features: int = 15,
         tv_weight: float = 1e-4,
-        depth_tv_weight: float | None = None,
+        depth_tv_scale: float = 1.0,
         init_range: tuple[float, float] = (0.1, 0.5),
         density_shift: float = 0.0,
     ) -> None:
@@ -109,9 +109,9 @@ class KPlanesField(Field):
                 fields through the samples' cache).
             hidden: width of the density and colour MLPs (one hidden layer each).
             geometry_features: features passed from the density MLP to the colour MLP.
-            tv_weight: weight of the planes' total variation (K-Planes' spatial TV; 0: off), added to the loss by
-                `regularization`.
-            depth_tv_weight: TV weight of the xz and yz planes (None: `tv_weight`).
+            tv_weight: initial weight of the planes' total variation (K-Planes' spatial TV; 0: off), the objective's
+                term `tv_<field>` (`regularizers`; a `LossWeightSchedule` may set it).
+            depth_tv_scale: the TV of the xz and yz planes counts this many times the xy planes' in the term.
             init_range: planes are initialised uniformly in this range (K-Planes: (0.1, 0.5)).
             density_shift: added to the density MLP's output before the exponential (DVGO's "act_shift"): negative
                 values start training from nearly empty space instead of a fog in front of the cameras.
@@ -131,8 +131,7 @@ class KPlanesField(Field):
         self.resolutions, self.depth_resolutions = resolutions, depth_resolutions
         self.density_scales, self.residual_scales_to_color = density_scales, residual_scales_to_color
         self.features, self.view_dependent, self.view_bands = features, view_dependent, view_bands
-        self.tv_weight, self.density_shift = tv_weight, density_shift
-        self.depth_tv_weight = tv_weight if depth_tv_weight is None else depth_tv_weight
+        self.tv_weight, self.depth_tv_scale, self.density_shift = tv_weight, depth_tv_scale, density_shift
         self.planes = nn.ParameterList()
         for res, res_z in zip(resolutions, depth_resolutions, strict=True):
             nodes = (res, res, res_z)
@@ -187,17 +186,17 @@ class KPlanesField(Field):
         """{"grid": the planes, "decoder": the MLPs}: grids train with a much larger learning rate than MLPs."""
         return {"grid": list(self.planes), "decoder": [*self.density_net.parameters(), *self.color_net.parameters()]}
 
-    def regularization(self) -> torch.Tensor | None:
-        """tv_weight * sum of the xy planes' TV + depth_tv_weight * sum of the xz and yz planes' TV (K-Planes)."""
-        if self.tv_weight == 0 and self.depth_tv_weight == 0:
-            return None
-        total = None
-        for index, plane in enumerate(self.planes):
-            weight = self.tv_weight if index % 3 == 0 else self.depth_tv_weight
-            if weight:
-                term = weight * plane_tv(plane)
-                total = term if total is None else total + term
-        return total
+    def regularizers(self) -> dict[str, float]:
+        """{"tv": tv_weight}: the planes' total variation, a term of the objective."""
+        return {"tv": self.tv_weight}
+
+    def regularization(self, name: str) -> torch.Tensor:
+        """"tv": sum of the xy planes' TV + depth_tv_scale * sum of the xz and yz planes' TV (K-Planes), unweighted."""
+        if name != "tv":
+            return super().regularization(name)
+        xy = sum(plane_tv(plane) for plane in self.planes[0::3])
+        depth = sum(plane_tv(plane) for i, plane in enumerate(self.planes) if i % 3)
+        return xy + self.depth_tv_scale * depth
 
     def extra_repr(self) -> str:
         return (f"resolutions={self.resolutions}, depth_resolutions={self.depth_resolutions}, "

@@ -35,6 +35,22 @@ class NeRFOutputs:
         return NeRFOutputs(*(p[:n] for p in parts)), NeRFOutputs(*(p[n:] for p in parts))
 
 
+@dataclass
+class FrameRender:
+    """A deterministic render of many rays (e.g. a full frame, then [H, W, ...]): the fine field's colour [..., 3],
+    depth [...] and accumulation [...], and the coarse field's depth [...]."""
+
+    rgb: torch.Tensor
+    depth: torch.Tensor
+    accumulation: torch.Tensor
+    coarse_depth: torch.Tensor
+
+    def reshape(self, height: int, width: int) -> FrameRender:
+        """The render of H * W rays as an H x W frame."""
+        return FrameRender(self.rgb.reshape(height, width, 3), *(x.reshape(height, width) for x in
+                           (self.depth, self.accumulation, self.coarse_depth)))  # fmt: skip
+
+
 class NeRF(nn.Module):
     """Coarse and fine radiance fields with stratified + hierarchical sampling in NDC."""
 
@@ -112,20 +128,15 @@ class NeRF(nn.Module):
         return NeRFOutputs(coarse=coarse, fine=fine, coarse_samples=coarse_samples, fine_samples=fine_samples)
 
     @torch.no_grad()
-    def render_rays_chunked(self, rays: RayBundle, chunk: int) -> dict[str, torch.Tensor]:
+    def render_rays_chunked(self, rays: RayBundle, chunk: int) -> FrameRender:
         """Deterministic rendering of many rays (a full frame) in chunks, so memory is bounded at any resolution.
 
         Returns:
             rgb [R, 3], depth [R], accumulation [R] of the fine field, and coarse_depth [R].
         """
-        parts: dict[str, list[torch.Tensor]] = {"rgb": [], "depth": [], "accumulation": [], "coarse_depth": []}
-        for start in range(0, len(rays), chunk):
-            out = self(rays[start : start + chunk], randomized=False)
-            parts["rgb"].append(out.fine.rgb)
-            parts["depth"].append(out.fine.depth)
-            parts["accumulation"].append(out.fine.accumulation)
-            parts["coarse_depth"].append(out.coarse.depth)
-        return {k: torch.cat(v) for k, v in parts.items()}
+        parts = [self(rays[start : start + chunk], randomized=False) for start in range(0, len(rays), chunk)]
+        return FrameRender(torch.cat([p.fine.rgb for p in parts]), torch.cat([p.fine.depth for p in parts]),
+                           torch.cat([p.fine.accumulation for p in parts]), torch.cat([p.coarse.depth for p in parts]))
 
 
 def mlp_nerf(num_coarse: int = 64, num_fine: int = 128, density_noise_std: float = 1.0, near: float = 1.0,

@@ -125,7 +125,9 @@ def render_chunks(model, rays: RayBundle, mode: RenderMode, stop: Callable[[], b
             out = {"rgb": main.fine.rgb, "depth": main.fine.depth, "accumulation": main.fine.accumulation,
                    "coarse_depth": main.coarse.depth, "augmented_depth": aug.render(model.nerf, main, False).depth}
         else:
-            out = model.nerf.render_rays_chunked(part, chunk)
+            frame = model.nerf.render_rays_chunked(part, chunk)
+            out = {"rgb": frame.rgb, "depth": frame.depth, "accumulation": frame.accumulation,
+                   "coarse_depth": frame.coarse_depth}
         for key, value in out.items():
             parts.setdefault(key, []).append(value)
     return {key: torch.cat(values) for key, values in parts.items()}

@@ -144,7 +144,7 @@ class Viewer:
             self.fps = gui.add_number("fps", initial_value=30.0, min=1.0)
             add = gui.add_button("Add keyframe", hint="the current camera")
             clear = gui.add_button("Clear keyframes")
-            export = gui.add_button("Export camera path", hint="a file `tools/render_video.py --trajectory` takes")
+            export = gui.add_button("Export camera path", hint="a file `simplenerf render-video --trajectory` takes")
         add.on_click(lambda event: self.add_keyframe(event.client))
         clear.on_click(lambda _: self.clear_keyframes())
         export.on_click(lambda event: self.export_path(event.client))

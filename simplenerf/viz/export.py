@@ -67,9 +67,9 @@ def render_view(nerf: nn.Module, c2w: torch.Tensor, intrinsics: torch.Tensor, he
     finally:
         nerf.train(was_training)
     return RenderedView(
-        depth=out["depth"].reshape(height, width).float().cpu().numpy(),
-        accumulation=out["accumulation"].reshape(height, width).float().cpu().numpy(),
-        rgb=out["rgb"].reshape(height, width, 3).float().cpu().numpy(),
+        depth=out.depth.reshape(height, width).float().cpu().numpy(),
+        accumulation=out.accumulation.reshape(height, width).float().cpu().numpy(),
+        rgb=out.rgb.reshape(height, width, 3).float().cpu().numpy(),
     )
 
 

@@ -11,6 +11,7 @@ from jsonargparse.typing import PositiveInt
 
 from simplenerf.method.reliability import mask_fractions
 from simplenerf.metrics.scores import psnr
+from simplenerf.model.nerf import FrameRender
 from simplenerf.module import SimpleNeRF
 from simplenerf.viz.pictures import (
     colorize_depth,
@@ -30,7 +31,7 @@ def error_map(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (pred - target.to(pred)).abs().mean(dim=-1)
 
 
-def render_pictures(pred: dict[str, torch.Tensor], target: torch.Tensor, max_error: float) -> dict[str, np.ndarray]:
+def render_pictures(pred: FrameRender, target: torch.Tensor, max_error: float) -> dict[str, np.ndarray]:
     """The pictures of one rendered frame, by kind (`KINDS`).
 
     Args:
@@ -38,8 +39,9 @@ def render_pictures(pred: dict[str, torch.Tensor], target: torch.Tensor, max_err
         target: [H, W, 3] ground truth in [0, 1].
         max_error: error shown at the top of the error colour map.
     """
-    as_numpy = {k: pred[k].detach().float().cpu().numpy() for k in ("rgb", "depth", "accumulation")}
-    error = error_map(pred["rgb"].detach(), target).float().cpu().numpy()
+    as_numpy = {k: x.detach().float().cpu().numpy() for k, x in (("rgb", pred.rgb), ("depth", pred.depth),
+                                                                   ("accumulation", pred.accumulation))}
+    error = error_map(pred.rgb.detach(), target).float().cpu().numpy()
     return {
         "rgb": to_uint8(as_numpy["rgb"]),
         "depth": colorize_depth(as_numpy["depth"]),  # the frame's own percentiles: contrast within one picture
@@ -83,13 +85,13 @@ class ValidationRenders(L.Callback):
             self.validations += 1
 
     def on_validation_batch_end(self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0) -> None:
-        if trainer.sanity_checking or batch_idx != 0 or dataloader_idx != 0 or not isinstance(outputs, dict):
+        if trainer.sanity_checking or batch_idx != 0 or dataloader_idx != 0 or not isinstance(outputs, FrameRender):
             return
         if (self.validations - 1) % self.every_n_validations != 0:
             return
-        target = batch.rgb.reshape(outputs["rgb"].shape)
+        target = batch.rgb.reshape(outputs.rgb.shape)
         pictures = render_pictures(outputs, target, self.max_error)
-        frame_psnr = float(psnr(outputs["rgb"][None].detach(), target[None])[0])
+        frame_psnr = float(psnr(outputs.rgb[None].detach(), target[None])[0])
         step = trainer.global_step
         name = batch.name
         captions = {kind: f"{name} step {step}" for kind in KINDS}

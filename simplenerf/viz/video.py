@@ -150,8 +150,8 @@ def render_video(
     try:
         for pose in tqdm(c2w, desc=f"video {out_path.name}", unit="frame", disable=None):  # no bar in a log file
             out = nerf.render_rays_chunked(frame_rays(pose, intrinsics, height, width, near), chunk)
-            held.append((out["rgb"].reshape(height, width, 3).float().cpu().numpy(),
-                         out["depth"].reshape(height, width).float().cpu().numpy()))
+            held.append((out.rgb.reshape(height, width, 3).float().cpu().numpy(),
+                         out.depth.reshape(height, width).float().cpu().numpy()))
             if depth_range is None:
                 if len(held) < n_held:
                     continue

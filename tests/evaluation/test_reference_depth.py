@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import torch
@@ -39,11 +41,11 @@ class ExactDepth(nn.Module):
         self.depths, self.frame = depths, 0
         self.dummy = nn.Parameter(torch.zeros(()))  # where to render
 
-    def render_rays_chunked(self, rays, chunk: int) -> dict[str, torch.Tensor]:
+    def render_rays_chunked(self, rays, chunk: int) -> SimpleNamespace:
         depth = self.depths[self.frame].reshape(-1)
         assert len(rays) == depth.numel()
         self.frame += 1
-        return {"depth": depth}
+        return SimpleNamespace(depth=depth)
 
 
 def test_export_is_in_file_units_so_any_split_reads_it(synthetic_scene, tmp_path):

@@ -31,8 +31,8 @@ def tiny_configs(tmp: Path, steps: int = STEPS) -> dict[str, Path]:
         "logger": {"class_path": "simplenerf.loggers.WandbLogger", "init_args": {"save_dir": "unset"}}}
     simplenerf = {"model": model, "data": data, "trainer": trainer, "checkpoint": {"every_n_train_steps": 2},
                   "evaluation": {"lpips": False}}
-    dsnerf = {"model": {"augmentations": [], "coarse_fine_mask": None}, "trainer": {"callbacks": []}}
-    dense = {**simplenerf, "model": {**model, "augmentations": [], "coarse_fine_mask": None},
+    dsnerf = {"model": {"augmentations": [], "objective": {"coarse_fine_mask": None}}, "trainer": {"callbacks": []}}
+    dense = {**simplenerf, "model": {**model, "augmentations": [], "objective": {"coarse_fine_mask": None}},
              "data": {**data, "init_args": {**data["init_args"], "n_views": None}},
              "trainer": {**trainer, "callbacks": []}}
     paths = {}

@@ -54,19 +54,18 @@ def paper_step() -> dict[str, float]:
 
     torch.manual_seed(0)
     args = ["--config", str(REPO / "configs/llff.yaml"), "--data.init_args.scene_dir", str(REPO),
-            "--model.rays_per_backward", "null", "--trainer.logger", "false"]
+            "--model.rays_per_backward", "2048", "--trainer.logger", "false"]  # random rays, then sparse rays
     module = make_cli(args, run=False).model
     module.train()
     views, batch = scene()
-    module.train_views = views
+    module.set_train_views(views)
     for name in ("points", "views", "cfc"):  # after the 10k-step warm-up
-        module.loss_weights[name] = 0.1
+        module.terms[name].weight = 0.1
     logged: dict[str, float] = {}
     module.log_dict = lambda values, **kwargs: logged.update({k: float(v) for k, v in values.items()})
     module.log = lambda name, value, **kwargs: None
     torch.manual_seed(1)
-    loss = module.training_step(batch, 0)
-    loss.backward()
+    module.log_step(module.backward_parts(batch, torch.Tensor.backward), batch)  # a step, without its optimiser
     for prefix in ("nerf.coarse", "nerf.fine", "augmentations.0", "augmentations.1"):
         grads = [p.grad for n, p in module.named_parameters() if n.startswith(prefix) and p.grad is not None]
         logged[f"grad_norm/{prefix}"] = float(torch.sqrt(sum(g.square().sum() for g in grads)))

@@ -34,7 +34,7 @@ def test_fields_are_called_with_samples():
     _, p_enc, v_enc = encodings()
     field = RadianceField(num_layers=2, width=8, skip_layer=None)
     assert isinstance(field, Field) and set(field.parameter_groups()) == {"mlp"}
-    assert field.regularization() is None
+    assert field.regularizers() == {}
     out = field(at(p_enc, v_enc))
     assert out.raw_density.shape == (4, 5) and out.rgb.shape == (4, 5, 3)
 

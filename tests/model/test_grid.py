@@ -118,8 +118,8 @@ def test_parameter_groups_split_grids_from_decoders():
     assert sorted(ids) == sorted(id(p) for p in field.parameters())  # a partition of all parameters
 
 
-def test_regularization_is_the_weighted_total_variation_of_the_planes():
-    field = KPlanesField(resolutions=[4], depth_resolutions=[3], features=2, tv_weight=0.5, depth_tv_weight=0.25)
+def test_regularization_is_the_total_variation_of_the_planes_with_its_weight_apart():
+    field = KPlanesField(resolutions=[4], depth_resolutions=[3], features=2, tv_weight=0.5, depth_tv_scale=0.25)
     with torch.no_grad():
         for p in field.planes:
             p.fill_(1.0)
@@ -127,8 +127,10 @@ def test_regularization_is_the_weighted_total_variation_of_the_planes():
         field.planes[1][..., 1, :] = 3.0  # xz: a ridge along z: differences 2, -2 on 2 of 2 rows -> 2 (4 + 0)
     assert plane_tv(field.planes[0]).item() == pytest.approx(2.0)
     assert plane_tv(field.planes[1]).item() == pytest.approx(8.0)
-    assert field.regularization().item() == pytest.approx(0.5 * 2.0 + 0.25 * 8.0)
-    assert KPlanesField(resolutions=[4], tv_weight=0.0).regularization() is None
+    assert field.regularization("tv").item() == pytest.approx(2.0 + 0.25 * 8.0)  # xy + scale * (xz + yz)
+    assert field.regularizers() == {"tv": 0.5}  # the weight is the objective's term weight
+    with pytest.raises(KeyError, match="no regulariser 'l1'"):
+        field.regularization("l1")
 
 
 def test_trunc_exp_clamps_its_gradient_only():
@@ -222,11 +224,12 @@ def test_grid_dsnerf_configs_are_the_simplenerf_ones_without_the_simplifiers(sim
     a = yaml.safe_load((GRID / f"{simple}.yaml").read_text())
     b = yaml.safe_load((GRID / f"{baseline}.yaml").read_text())
     assert len(a["model"]["augmentations"]) == 2 and b["model"]["augmentations"] == []
-    assert b["model"]["coarse_fine_mask"] is None and "callbacks" not in b["trainer"]
+    assert b["model"]["objective"]["coarse_fine_mask"] is None and "callbacks" not in b["trainer"]
     for config in (a, b):
-        for key in ("augmentations", "coarse_fine_mask", "coarse_fine_weight", "coarse_fine_on_sparse_rays",
-                    "supervision", "depth_loss_space"):  # what only the masked depth losses read
-            config["model"].pop(key, None)
+        config["model"].pop("augmentations")
+        for key in ("coarse_fine_mask", "coarse_fine_weight", "coarse_fine_on_sparse_rays", "supervision",
+                    "depth_loss_space"):  # what only the masked depth losses read
+            config["model"]["objective"].pop(key, None)
         config.pop("trainer")
     assert a == b
 

@@ -41,9 +41,9 @@ def test_chunked_rendering_equals_one_pass_and_is_deterministic():
     with torch.no_grad():
         whole = nerf(r, randomized=False)
     chunked = nerf.render_rays_chunked(r, chunk=10)
-    assert torch.allclose(chunked["rgb"], whole.fine.rgb, atol=1e-6)
-    assert torch.allclose(chunked["depth"], whole.fine.depth, atol=1e-5)
-    assert torch.equal(nerf.render_rays_chunked(r, chunk=64)["rgb"], nerf.render_rays_chunked(r, chunk=64)["rgb"])
+    assert torch.allclose(chunked.rgb, whole.fine.rgb, atol=1e-6)
+    assert torch.allclose(chunked.depth, whole.fine.depth, atol=1e-5)
+    assert torch.equal(nerf.render_rays_chunked(r, chunk=64).rgb, nerf.render_rays_chunked(r, chunk=64).rgb)
 
 
 def test_gradients_reach_both_fields():

@@ -109,7 +109,7 @@ def test_screenshot_and_camera_path_export(viewer, viewer_run, tmp_path):
 
     # render-video takes the exported path: one frame per pose
     folder, video = viewer_run[0], tmp_path / "path.mp4"
-    proc = subprocess.run([sys.executable, "tools/render_video.py", "--config", str(folder / "config.yaml"),
+    proc = subprocess.run([sys.executable, "-m", "simplenerf", "render-video", "--config", str(folder / "config.yaml"),
                            "--ckpt", str(folder / "checkpoints" / "last.ckpt"), "--trajectory", str(out),
                            "--factor-down", "4", "--out", str(video)], cwd=REPO, capture_output=True, text=True,
                           timeout=300)

@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from simplenerf.metrics.scores import psnr
+from simplenerf.model.nerf import FrameRender
 from simplenerf.viz.renders import (
     KINDS,
     ValidationRenders,
@@ -27,12 +28,8 @@ def inferno(levels: list[int]) -> np.ndarray:
 
 def frame() -> tuple[dict[str, torch.Tensor], torch.Tensor]:
     """A prediction (grey 0.5, accumulation 0.25, depth 1..2) and a target off by 0.25 on the right half."""
-    pred = {
-        "rgb": torch.full((H, W, 3), 0.5),
-        "depth": torch.linspace(1.0, 2.0, H * W).reshape(H, W),
-        "accumulation": torch.full((H, W), 0.25),
-        "coarse_depth": torch.ones(H, W),
-    }
+    pred = FrameRender(rgb=torch.full((H, W, 3), 0.5), depth=torch.linspace(1.0, 2.0, H * W).reshape(H, W),
+                       accumulation=torch.full((H, W), 0.25), coarse_depth=torch.ones(H, W))
     target = torch.full((H, W, 3), 0.5)
     target[:, W // 2 :] = 0.75
     return pred, target
@@ -42,7 +39,7 @@ def test_picture_helpers_exact():
     assert np.array_equal(to_uint8(np.array([-0.1, 0.0, 0.5, 1.0, 2.0])), [0, 0, 128, 255, 255])
     assert np.array_equal(grey_picture(np.array([[0.25]])), [[[64, 64, 64]]])
     pred, target = frame()
-    err = error_map(pred["rgb"], target)
+    err = error_map(pred.rgb, target)
     assert err.shape == (H, W) and torch.all(err[:, : W // 2] == 0)
     assert torch.allclose(err[:, W // 2 :], torch.tensor(0.25))
     picture = colorize_error(np.array([[0.0, 0.25, 0.5, 0.9]]), max_error=0.5)
@@ -91,7 +88,7 @@ def test_callback_logs_and_saves_the_pictures(tmp_path):
     for kind in KINDS:
         assert cv2.imread(str(tmp_path / "val" / f"step000250_{kind}.png")).shape == (H, W, 3)
     pred, target = frame()
-    expected_psnr = float(psnr(pred["rgb"][None], target[None])[0])
+    expected_psnr = float(psnr(pred.rgb[None], target[None])[0])
     assert [c["key"] for c in logger.calls] == [f"val/render_{kind}" for kind in KINDS]
     assert all(c["step"] == 250 and len(c["images"]) == 1 for c in logger.calls)
     assert logger.calls[0]["caption"] == ["008 step 250"]

@@ -84,7 +84,7 @@ def test_render_video_writes_rgb_beside_depth(synthetic_scene, tmp_path):
     assert mp4_codec(out) == "avc1"
     assert out.read_bytes().index(b"moov") < out.read_bytes().index(b"mdat")
     # left half: the deterministic render of the first pose (up to mp4 compression)
-    expected = nerf.render_rays_chunked(frame_rays(c2w[0], scene.views.intrinsics[0], h, w, 1.0), 1024)["rgb"]
+    expected = nerf.render_rays_chunked(frame_rays(c2w[0], scene.views.intrinsics[0], h, w, 1.0), 1024).rgb
     expected = np.round(expected.reshape(h, w, 3).numpy() * 255)
     left = cv2.cvtColor(frames[0][:, :w], cv2.COLOR_BGR2RGB).astype(np.float64)
     assert np.abs(left - expected).mean() < 4

@@ -1,0 +1,232 @@
+"""SimpleNeRF's objective (paper Sec. 4.4) as typed terms: L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc, plus
+each field's own regulariser (e.g. a grid's total variation): L = sum over terms of term.weight * term value.
+
+A term has a `name` (its value is logged as `train/loss_<name>`, its weight as `train_params/<name>`, and a
+`callbacks.LossWeightSchedule` sets its weight by that name), the rays it `reads` (the batch's random rays, its
+sparse-depth rays, or none: a regulariser, evaluated once per step) and a `weight`. A term whose weight is 0 is not
+computed (during the warm-up the masked terms cost nothing, not even their masks).
+
+A ray term's value is a mean over the rays it reads, so a batch may be rendered in parts (`module.SimpleNeRF`): the
+parts' values, each weighted by its share of the batch's rays of that kind, sum to the whole batch's value.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import torch
+
+from simplenerf.data.batches import RayBatch, SparseDepthBatch
+from simplenerf.method.losses import coarse_fine_sparse_loss, color_loss, sparse_depth_loss
+from simplenerf.method.reliability import (
+    Direction,
+    ReliabilityMask,
+    ReprojectionErrors,
+    mask_fractions,
+    masked_depth_loss,
+)
+from simplenerf.model.fields import Field
+from simplenerf.model.nerf import NeRFOutputs
+from simplenerf.model.rendering import RenderOutputs
+
+RayKind = Literal["random", "sparse"]
+# Names of renders and terms that an augmentation may not take.
+RESERVED_NAMES = ("coarse", "fine", "color", "sparse_depth", "cfc")
+
+
+@dataclass
+class Objective:
+    """The settings of the loss besides the augmentations' own (`Augmentation.mask`, `depth_weight`).
+
+    Args:
+        color_weight: lambda_1, weight of the colour loss (main coarse, main fine and each augmentation).
+        sparse_depth_weight: lambda_2, weight of DS-NeRF's sparse-depth loss (main fine and each augmentation; used
+            when the data module serves sparse-depth rays, `sparse_rays_per_batch` > 0).
+        coarse_fine_mask: reliability mask of the coarse-fine consistency loss L_cfc; null disables L_cfc.
+        coarse_fine_weight: lambda_5, weight of L_cfc (a warm-up schedule may set it per step).
+        coarse_fine_on_sparse_rays: as the release, L_cfc also has an unmasked (z_coarse - sg(z_fine))^2 on the
+            sparse-depth rays: the only path by which SfM depth reaches the main coarse field.
+        supervision: `bidirectional`: where a mask is -1 the other depth is trained toward the main one (the paper's
+            equations); `one_way`: only mask +1 rays train the main depth (what the release trains; the default: on
+            the CPU benchmark it was slightly better in colour, within noise in depth).
+        depth_loss_space: what L_ap, L_av and L_cfc compare: `metric` depth (the paper and the release) or `inverse`
+            depth 1 / z, bounded by 1 / near. Metric depth grows without bound towards the NDC far plane, where a few
+            rays can dominate these squared losses (docs/results.md "Grid backbone"). The masks compare metric depth.
+    """
+
+    color_weight: float = 1.0
+    sparse_depth_weight: float = 0.1
+    coarse_fine_mask: ReliabilityMask | None = None
+    coarse_fine_weight: float = 0.1
+    coarse_fine_on_sparse_rays: bool = True
+    supervision: Direction = "one_way"
+    depth_loss_space: Literal["metric", "inverse"] = "metric"
+
+
+@dataclass
+class Renders:
+    """Every render of a batch of rays: the main coarse and fine NeRF and each augmentation, by name."""
+
+    main: NeRFOutputs
+    augmented: dict[str, RenderOutputs]
+
+    def __getitem__(self, name: str) -> RenderOutputs:
+        """A render by name: "coarse" or "fine" (the main NeRF's) or an augmentation's."""
+        if name in ("coarse", "fine"):
+            return self.main.coarse if name == "coarse" else self.main.fine
+        return self.augmented[name]
+
+    def split(self, n: int) -> tuple[Renders, Renders]:
+        """The renders of the first n rays (a training batch's random rays) and of the rest (its sparse rays)."""
+        (first, rest), augmented = self.main.split(n), self.augmented.items()
+        return Renders(first, {k: r[:n] for k, r in augmented}), Renders(rest, {k: r[n:] for k, r in augmented})
+
+
+@dataclass
+class RenderedRays:
+    """Rays of one kind from one part of a training batch, with their renders: what a ray term reads."""
+
+    kind: RayKind
+    rays: RayBatch | SparseDepthBatch
+    renders: Renders
+    share: float  # this part's fraction of the batch's rays of this kind
+    errors: ReprojectionErrors | None = None  # random rays: their patch reprojection errors, shared by the masks
+
+
+@dataclass
+class TermValue:
+    """A term's value [] on some rays, and the fractions of its mask's values there, by "<plus|minus|zero>"."""
+
+    value: torch.Tensor
+    masks: dict[str, torch.Tensor] = field(default_factory=dict)
+
+
+class Term:
+    """One weighted term of the total loss (a ray term implements `value`, a regulariser `once`)."""
+
+    def __init__(self, name: str, weight: float, reads: tuple[RayKind, ...]) -> None:
+        self.name, self.weight, self.reads = name, weight, reads
+
+    def value(self, rendered: RenderedRays) -> TermValue:
+        """The term's value on rays of a kind it reads (a mean over them)."""
+        raise NotImplementedError
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(name={self.name!r}, weight={self.weight}, reads={self.reads})"
+
+
+class ColorTerm(Term):
+    """L_color (lambda_1) on the random rays: main coarse, main fine and each augmentation."""
+
+    def __init__(self, weight: float) -> None:
+        super().__init__("color", weight, ("random",))
+
+    def value(self, rendered: RenderedRays) -> TermValue:
+        renders = rendered.renders
+        return TermValue(color_loss([renders.main.coarse, renders.main.fine, *renders.augmented.values()],
+                                    rendered.rays.rgb))
+
+
+class SparseDepthTerm(Term):
+    """DS-NeRF's L_sd (lambda_2) on the sparse-depth rays: main fine and each augmentation (not main coarse)."""
+
+    def __init__(self, weight: float) -> None:
+        super().__init__("sparse_depth", weight, ("sparse",))
+
+    def value(self, rendered: RenderedRays) -> TermValue:
+        renders, rays = rendered.renders, rendered.rays
+        return TermValue(sparse_depth_loss([renders.main.fine, *renders.augmented.values()], rays.depth, rays.weight))
+
+
+class MaskedDepthTerm(Term):
+    """A masked depth loss between the main model's render `main` and another render `other` (paper eqs. 3, 4, 7):
+    L_ap, L_av (an augmentation and the main coarse depth) or L_cfc (main fine and main coarse) on the random rays;
+    for L_cfc, optionally the release's unmasked (z_coarse - sg(z_fine))^2 on the sparse-depth rays as well."""
+
+    def __init__(self, name: str, weight: float, mask: ReliabilityMask, main: str, other: str,
+                 supervision: Direction, depth_loss_space: str, on_sparse_rays: bool = False) -> None:
+        super().__init__(name, weight, ("random", "sparse") if on_sparse_rays else ("random",))
+        self.mask, self.main, self.other = mask, main, other
+        self.supervision, self.depth_loss_space = supervision, depth_loss_space
+
+    def value(self, rendered: RenderedRays) -> TermValue:
+        main, other = rendered.renders[self.main], rendered.renders[self.other]
+        if rendered.kind == "sparse":
+            return TermValue(coarse_fine_sparse_loss(main, other))
+        assert rendered.errors is not None, "the train views were not given (SimpleNeRF.set_train_views)"
+        mask = self.mask.judge(rendered.errors, self.main, main.depth.detach(), self.other, other.depth.detach())
+        z_main, z_other = main.depth, other.depth
+        if self.depth_loss_space == "inverse":
+            z_main, z_other = 1.0 / z_main.clamp_min(1e-6), 1.0 / z_other.clamp_min(1e-6)
+        fractions = {} if mask is None else mask_fractions(mask)
+        return TermValue(masked_depth_loss(z_main, z_other, mask, self.supervision), fractions)
+
+
+class RegularizerTerm(Term):
+    """A field's own regulariser (`Field.regularizers`, e.g. a grid's total variation), once per step."""
+
+    def __init__(self, name: str, weight: float, field: Field, regularizer: str) -> None:
+        super().__init__(name, weight, ())
+        self.field, self.regularizer = field, regularizer
+
+    def once(self) -> torch.Tensor:
+        return self.field.regularization(self.regularizer)
+
+
+def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[str, Field]) -> dict[str, Term]:
+    """The terms by name, in the order they are summed: colour, sparse depth, one masked depth term per augmentation
+    (named after it), L_cfc ("cfc"), then each field's regularisers ("<regulariser>_<field>", e.g. "tv_fine").
+
+    Args:
+        augmentations: `method.augmentations.Augmentation`s. fields: the fields by name ("coarse", "fine" and the
+            augmentations' names).
+    """
+    terms: list[Term] = [ColorTerm(objective.color_weight), SparseDepthTerm(objective.sparse_depth_weight)]
+    depth = {"supervision": objective.supervision, "depth_loss_space": objective.depth_loss_space}
+    for aug in augmentations:
+        terms.append(MaskedDepthTerm(aug.name, aug.depth_weight, aug.mask, aug.stage, aug.name, **depth))
+    if objective.coarse_fine_mask is not None:
+        terms.append(MaskedDepthTerm("cfc", objective.coarse_fine_weight, objective.coarse_fine_mask, "coarse", "fine",
+                                     on_sparse_rays=objective.coarse_fine_on_sparse_rays, **depth))
+    for place, f in fields.items():
+        terms += [RegularizerTerm(f"{name}_{place}", weight, f, name) for name, weight in f.regularizers().items()]
+    names = [t.name for t in terms]
+    if len(set(names)) != len(names):
+        raise ValueError(f"loss term names must be unique, got {names}")
+    return {t.name: t for t in terms}
+
+
+@dataclass
+class PartLoss:
+    """The objective on one part of a training batch."""
+
+    loss: torch.Tensor  # [] sum of weight * share * value over the part's terms, with its graph
+    values: dict[str, torch.Tensor]  # share * value by term name, detached
+    masks: dict[str, torch.Tensor]  # share * mask fractions by "<term>/<plus|minus|zero>", detached
+
+
+def part_loss(terms: Mapping[str, Term], parts: Sequence[RenderedRays], regularize: bool) -> PartLoss:
+    """The weighted terms on rendered rays (a part's random and / or sparse rays), plus, with `regularize`, the
+    regularisers (once per step). Terms of weight 0 are not computed."""
+    active = [t for t in terms.values() if t.weight != 0]
+    kind_losses, values, masks = [], {}, {}
+    for rendered in parts:
+        loss = torch.zeros((), device=rendered.rays.rgb.device)
+        for term in (t for t in active if rendered.kind in t.reads):
+            result = term.value(rendered)
+            value = rendered.share * result.value
+            loss = loss + term.weight * value
+            values[term.name] = values[term.name] + value.detach() if term.name in values else value.detach()
+            for key, fraction in result.masks.items():
+                key = f"{term.name}/{key}"
+                masks[key] = masks.get(key, 0.0) + rendered.share * fraction
+        kind_losses.append(loss)
+    total = sum(kind_losses)
+    if regularize:
+        for term in (t for t in active if isinstance(t, RegularizerTerm)):
+            value = term.once()
+            total = total + term.weight * value
+            values[term.name] = value.detach()
+    return PartLoss(total, values, masks)

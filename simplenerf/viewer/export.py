@@ -1,5 +1,5 @@
-"""What the viewer saves: the camera path through the keyframes a user placed (a file `simplenerf render-video --trajectory` renders
-with `--trajectory`), and screenshots of the current render. Files go to the viewer's output folder
+"""What the viewer saves: the camera path through the keyframes a user placed (a file `simplenerf render-video`
+renders with `--trajectory`), and screenshots of the current render. Files go to the viewer's output folder
 (`<run>/viewer/` by default) and are also sent to the browser as downloads."""
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ def interpolate_path(keyframes: list[ViewerCamera], frames_per_segment: int) -> 
 def camera_path(keyframes: list[ViewerCamera], frames_per_segment: int, max_side: int, fps: float, fov_y: float,
                 aspect: float) -> CameraPath:
     """The path through `keyframes` for frames of vertical field of view `fov_y` (radians) and `aspect` (width /
-    height, the larger side `max_side`): the train views' in the viewer, as `simplenerf render-video` builds the NDC of its
-    rays from the frames' camera (that of the data only with the train views' field of view and aspect)."""
+    height, the larger side `max_side`): the train views' in the viewer, as `simplenerf render-video` builds the NDC of
+    its rays from the frames' camera (that of the data only with the train views' field of view and aspect)."""
     width, height = ViewerCamera(np.eye(3, 4), fov_y, aspect).image_size(max_side)
     return CameraPath(torch.from_numpy(interpolate_path(keyframes, frames_per_segment)), width, height, fov_y, fps)
 

@@ -182,7 +182,8 @@ class SimpleNeRF(L.LightningModule):
         for i, part in enumerate(parts):
             rendered = self.render_part(part)
             result = part_loss(self.terms, rendered, regularize=i == len(parts) - 1)
-            backward(result.loss)  # frees this part's activations before the next part is rendered
+            if result.loss.requires_grad:  # (not when every term this part's rays feed has weight 0)
+                backward(result.loss)  # frees this part's activations before the next part is rendered
             total = total + result.loss.detach()
             for name, value in result.values.items():
                 values[name] = values[name] + value if name in values else value

@@ -307,7 +307,7 @@ def test_too_many_views_is_one_line_error(tmp_path):
 
 def test_print_config_is_commented_and_reloadable(tmp_path):
     printed = run("fit", "--config", "configs/demo.yaml", "--print_config=comments").stdout
-    assert "# lambda_1, weight of the colour loss." in printed  # argument docs become comments
+    assert "# lambda_1, weight of the colour loss (main coarse, main fine and each augmentation)." in printed  # docs
     config = tmp_path / "printed.yaml"
     config.write_text(printed)
     assert yaml.safe_load(printed)["model"]["nerf"]["init_args"]["coarse"]["init_args"]["width"] == 64

@@ -272,3 +272,10 @@ def test_a_scheduled_tv_weight_is_applied_and_logged(batch, monkeypatch):
     expected = (logged["train/loss_color"] + 0.1 * logged["train/loss_sparse_depth"]
                 + 0.01 * logged["train/loss_tv_coarse"] + 0.25 * logged["train/loss_tv_fine"])
     assert torch.allclose(loss, expected)
+
+
+def test_a_part_whose_terms_are_all_off_is_not_backpropagated(batch, monkeypatch):
+    model = SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, num_layers=2, width=16, skip_layer=1),
+                       objective=Objective(sparse_depth_weight=0.0), rays_per_backward=1000)  # random, then sparse
+    loss, logged = step(model, batch, monkeypatch)
+    assert "train/loss_sparse_depth" not in logged and torch.allclose(loss, logged["train/loss_color"])

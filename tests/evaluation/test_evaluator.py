@@ -30,6 +30,7 @@ from simplenerf.evaluation.evaluator import (
 )
 from simplenerf.evaluation.visibility import scene_visibility_masks
 from simplenerf.metrics.scores import PSNR_CAP
+from simplenerf.model.nerf import FrameRender
 from tests.conftest import REPO, shared_dir
 from tests.metrics.test_scores import lpips_weights
 from tests.test_cli import run, run_args
@@ -44,7 +45,7 @@ class GroundTruthRenderer(L.LightningModule):
         super().__init__()
         self.corrupt_outside = corrupt_outside
 
-    def test_step(self, batch: Frame, batch_idx: int) -> dict[str, torch.Tensor]:
+    def test_step(self, batch: Frame, batch_idx: int) -> FrameRender:
         h, w = batch.height, batch.width
         rgb = batch.rgb.reshape(h, w, 3).clone()
         depth = batch.depth.reshape(h, w).clone() if batch.depth is not None else torch.ones(h, w)
@@ -52,7 +53,7 @@ class GroundTruthRenderer(L.LightningModule):
             keep = self.corrupt_outside[batch.index]
             rgb[~keep] = 0.0
             depth[~keep] = 2.0 * depth[~keep]
-        return {"rgb": rgb, "depth": depth}
+        return FrameRender(rgb, depth, torch.ones(h, w), depth)
 
 
 def run_test(root: Path, scene_dir: Path, module: L.LightningModule, **evaluator_args) -> Path:

@@ -72,7 +72,7 @@ def trained(tmp_path_factory) -> Path:
     tmp = tmp_path_factory.mktemp("cli")
     first = run("fit", *run_args(tmp), "--trainer.max_steps", "4")
     second = run("fit", *run_args(tmp), "--trainer.max_steps", "6", "--ckpt_path", "last", "--video.frames", "3",
-                 "--video.factor_down", "4")
+                 "--video.scale", "0.25")
     for name, proc in (("fit1", first), ("fit2", second)):
         (tmp / f"{name}.stdout").write_text(proc.stdout)
         (tmp / f"{name}.stderr").write_text(proc.stderr)

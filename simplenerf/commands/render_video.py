@@ -32,7 +32,8 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     parser.add_argument("--trajectory", help="a camera path file exported from `simplenerf view` (instead of --path)")
     parser.add_argument("--frames", type=int, default=120, help="frames of the spiral")
     parser.add_argument("--rotations", type=float, default=2, help="turns of the spiral")
-    parser.add_argument("--factor-down", type=int, default=1, help="render at 1/N of the data's resolution")
+    parser.add_argument("--scale", type=float, default=1.0,
+                        help="render at this times the data's resolution (0.25: a quarter, 2: twice)")
     parser.add_argument("--fps", type=float, default=30, help="frames per second")
     parser.add_argument("--depth-range", type=float, nargs=2, metavar=("CLOSEST", "FARTHEST"),
                         help="depths (scene units) at the ends of the colour map; default: from the first frames")
@@ -49,7 +50,7 @@ def main(argv: Sequence[str]) -> None:
     if path is not None:
         out = args.out or Path(cli.trainer.default_root_dir) / f"video_{Path(args.trajectory).stem}.mp4"
         written, n, width, height, (closest, farthest) = render_camera_path_video(
-            cli.model, cli.datamodule, path, out, args.factor_down,
+            cli.model, cli.datamodule, path, out, args.scale,
             tuple(args.depth_range) if args.depth_range else None)
         print(f"video: {written} ({n} frames of {2 * width}x{height}, {args.trajectory}; "
               f"--depth-range {closest:.4g} {farthest:.4g})")
@@ -57,7 +58,7 @@ def main(argv: Sequence[str]) -> None:
     kind = args.path or cli.datamodule.scene.camera_path
     out = args.out or Path(cli.trainer.default_root_dir) / f"video_{kind}.mp4"
     written, n, width, height, kind, (closest, farthest) = render_scene_video(
-        cli.model, cli.datamodule, out, kind, args.frames, args.rotations, args.factor_down, args.fps,
+        cli.model, cli.datamodule, out, kind, args.frames, args.rotations, args.scale, args.fps,
         tuple(args.depth_range) if args.depth_range else None,
     )
     print(f"video: {written} ({n} frames of {2 * width}x{height}, {kind}; "

@@ -208,7 +208,7 @@ def export_geometry(
 
 
 def render_without_test_frames(model: nn.Module, datamodule, ckpt_path: str | Path, out_dir: str | Path,
-                               video_factor_down: int = 2) -> list[Path]:
+                               video_scale: float = 0.5) -> list[Path]:
     """What `test` does on a split with no test frames (own photos: `train_frames`, or LLFF `test_every: 0`): no
     metrics, but the trained model's depth maps of the train views, its point cloud and the spiral video, in
     `out_dir`. Loads the weights of `ckpt_path` into `model` (a `SimpleNeRF`).
@@ -226,5 +226,5 @@ def render_without_test_frames(model: nn.Module, datamodule, ckpt_path: str | Pa
                     scale=scene.scale)
     with torch.no_grad():
         video, *_ = render_scene_video(model, datamodule, out_dir / "video_spiral.mp4", "spiral",
-                                       factor_down=video_factor_down)
+                                       scale=video_scale)
     return [out_dir / "depth", out_dir / "points.ply", video]

@@ -18,7 +18,7 @@ import av
 import lightning as L
 import numpy as np
 import torch
-from jsonargparse.typing import NonNegativeInt, PositiveInt
+from jsonargparse.typing import NonNegativeInt, PositiveFloat
 from tqdm import tqdm
 
 from simplenerf.data.scene import SceneDataModule
@@ -35,16 +35,17 @@ def frame_rays(c2w: torch.Tensor, intrinsics: torch.Tensor, height: int, width: 
     return make_rays(intrinsics[None], c2w[None], uv, width, height, near)
 
 
-def downscale_intrinsics(
-    intrinsics: torch.Tensor, height: int, width: int, factor: int
+def scale_intrinsics(
+    intrinsics: torch.Tensor, height: int, width: int, scale: float
 ) -> tuple[torch.Tensor, int, int]:
-    """Intrinsics [3, 3] and image size for rendering at 1/factor of the resolution (pixel (u, v) then looks where
-    pixel (factor u, factor v) of the full resolution does, as in the data's convention)."""
-    if factor < 1:
-        raise ValueError(f"the downscaling factor must be at least 1, got {factor}")
+    """Intrinsics [3, 3] and image size for rendering at `scale` times the resolution (0.25: a quarter, 2: twice;
+    a NeRF renders at any size). Pixel (u, v) then looks where pixel (u / scale, v / scale) of the data does, as in
+    the data's convention (integer pixel coordinates)."""
+    if scale <= 0:
+        raise ValueError(f"the scale must be positive, got {scale}")
     scaled = intrinsics.clone()
-    scaled[:2, :] = intrinsics[:2, :] / factor
-    return scaled, height // factor, width // factor
+    scaled[:2, :] = intrinsics[:2, :] * scale
+    return scaled, max(1, round(height * scale)), max(1, round(width * scale))
 
 
 def depth_colour_range(depths: list[np.ndarray], percentiles: tuple[float, float] = (1.0, 99.0)) -> tuple[float, float]:
@@ -180,14 +181,14 @@ def render_scene_video(
     kind: TrajectoryKind | None = None,
     frames: int = 120,
     rotations: float = 2,
-    factor_down: int = 1,
+    scale: float = 1.0,
     fps: float = 30,
     depth_range: tuple[float, float] | None = None,
 ) -> tuple[Path, int, int, int, TrajectoryKind, tuple[float, float]]:
     """The video of a trained module (its `nerf`, `hparams.chunk`) along its data module's camera path: the spiral
     around the train views (`kind` "spiral") or the scene's recorded path ("recorded"); None: the scene's own
-    `camera_path`. Rendered at 1/`factor_down` of the data's resolution with the first
-    train view's intrinsics.
+    `camera_path`. Rendered at `scale` times the data's resolution with the first train view's
+    intrinsics.
 
     Returns:
         The written path, the number of frames, the width and height of each half, the path kind and the depth range.
@@ -195,8 +196,8 @@ def render_scene_video(
     scene = datamodule.scene
     kind = kind or scene.camera_path
     c2w = scene.trajectory(kind, frames, rotations)
-    intrinsics, height, width = downscale_intrinsics(
-        scene.views.intrinsics[scene.split.train[0]], scene.views.height, scene.views.width, factor_down
+    intrinsics, height, width = scale_intrinsics(
+        scene.views.intrinsics[scene.split.train[0]], scene.views.height, scene.views.width, scale
     )
     written, used_range = render_video(model.nerf, c2w, intrinsics, height, width, datamodule.near,
                                        model.hparams.chunk, out_path, fps, depth_range)
@@ -208,13 +209,13 @@ def render_camera_path_video(
     datamodule: L.LightningDataModule,
     path: CameraPath,
     out_path: str | Path,
-    factor_down: int = 1,
+    scale: float = 1.0,
     depth_range: tuple[float, float] | None = None,
 ) -> tuple[Path, int, int, int, tuple[float, float]]:
     """The video of a trained module along a saved camera path (`simplenerf view`'s export), at the path's size / N
     and frame rate. Returns the written path, the number of frames, the width and height of each half and the depth
     range."""
-    intrinsics, height, width = downscale_intrinsics(path.intrinsics, path.height, path.width, factor_down)
+    intrinsics, height, width = scale_intrinsics(path.intrinsics, path.height, path.width, scale)
     written, used_range = render_video(model.nerf, path.c2w, intrinsics, height, width, datamodule.near,
                                        model.hparams.chunk, out_path, path.fps, depth_range)
     return written, len(path.c2w), width, height, used_range
@@ -225,17 +226,18 @@ class TrainingVideo(L.Callback):
     `simplenerf render-video`) in `<trainer.default_root_dir>/video_<path>.mp4`, logged to every logger that takes
     videos (W&B: the media panel `video/<path>`). Rendered by global rank 0; off unless `frames` > 0."""
 
-    def __init__(self, frames: NonNegativeInt = 0, rotations: float = 2, factor_down: PositiveInt = 1,
+    def __init__(self, frames: NonNegativeInt = 0, rotations: float = 2, scale: PositiveFloat = 1.0,
                  fps: float = 30, trajectory: TrajectoryKind | None = None) -> None:
         """
         Args:
             frames: frames of the spiral (the recorded path has its own); 0: no video.
             rotations: turns of the spiral.
-            factor_down: render at 1/N of the data's resolution (a full-resolution video on a CPU takes long).
+            scale: render at this times the data's resolution (0.25: a quarter; a full-resolution video on a CPU
+                takes long).
             fps: frames per second.
             trajectory: spiral or recorded; null: the scene's `camera_path` (RealEstate: recorded, else spiral).
         """
-        self.frames, self.rotations, self.factor_down, self.fps = frames, rotations, factor_down, fps
+        self.frames, self.rotations, self.scale, self.fps = frames, rotations, scale, fps
         self.trajectory = trajectory
 
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
@@ -244,7 +246,7 @@ class TrainingVideo(L.Callback):
         kind = self.trajectory or trainer.datamodule.scene.camera_path
         out = Path(trainer.default_root_dir) / f"video_{kind}.mp4"
         written, n, width, height, kind, _ = render_scene_video(
-            pl_module, trainer.datamodule, out, kind, self.frames, self.rotations, self.factor_down, self.fps
+            pl_module, trainer.datamodule, out, kind, self.frames, self.rotations, self.scale, self.fps
         )
         for logger in trainer.loggers:
             log_video = getattr(logger, "log_video", None)

@@ -111,7 +111,7 @@ def test_screenshot_and_camera_path_export(viewer, viewer_run, tmp_path):
     folder, video = viewer_run[0], tmp_path / "path.mp4"
     proc = subprocess.run([sys.executable, "-m", "simplenerf", "render-video", "--config", str(folder / "config.yaml"),
                            "--ckpt", str(folder / "checkpoints" / "last.ckpt"), "--trajectory", str(out),
-                           "--factor-down", "4", "--out", str(video)], cwd=REPO, capture_output=True, text=True,
+                           "--scale", "0.25", "--out", str(video)], cwd=REPO, capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert f"video: {video} (5 frames of " in proc.stdout and video.stat().st_size > 0

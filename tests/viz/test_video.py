@@ -10,7 +10,7 @@ import torch
 
 from simplenerf.data.llff import load_llff_scene
 from simplenerf.model.nerf import NeRF, mlp_nerf
-from simplenerf.viz.video import compose_frame, depth_colour_range, downscale_intrinsics, frame_rays, render_video
+from simplenerf.viz.video import compose_frame, depth_colour_range, frame_rays, render_video, scale_intrinsics
 from tests.conftest import REPO
 
 
@@ -40,13 +40,16 @@ def read_video(path: Path) -> list[np.ndarray]:
     return frames
 
 
-def test_downscale_intrinsics():
+def test_scale_intrinsics_down_and_up():
     k = torch.tensor([[100.0, 0.0, 64.0], [0.0, 90.0, 48.0], [0.0, 0.0, 1.0]])
-    scaled, h, w = downscale_intrinsics(k, 96, 128, 4)
+    scaled, h, w = scale_intrinsics(k, 96, 128, 0.25)
     assert torch.equal(scaled, torch.tensor([[25.0, 0.0, 16.0], [0.0, 22.5, 12.0], [0.0, 0.0, 1.0]]))
     assert (h, w) == (24, 32)
-    with pytest.raises(ValueError, match="at least 1"):
-        downscale_intrinsics(k, 96, 128, 0)
+    scaled, h, w = scale_intrinsics(k, 96, 128, 2)  # larger than the data: a NeRF renders at any size
+    assert torch.equal(scaled, torch.tensor([[200.0, 0.0, 128.0], [0.0, 180.0, 96.0], [0.0, 0.0, 1.0]]))
+    assert (h, w) == (192, 256)
+    with pytest.raises(ValueError, match="must be positive"):
+        scale_intrinsics(k, 96, 128, 0)
 
 
 def test_depth_range_and_frame_layout():
@@ -130,7 +133,7 @@ def test_render_video_verb_on_the_demo_config(tmp_path):
     cli = make_cli([*args, "--trainer.logger", "false"], run=False)  # an untrained model: its state dict will do
     ckpt = tmp_path / "model.ckpt"
     torch.save({"state_dict": cli.model.state_dict()}, ckpt)
-    proc = run_tool("--config", "configs/demo.yaml", "--ckpt", str(ckpt), "--frames", "3", "--factor-down", "4",
+    proc = run_tool("--config", "configs/demo.yaml", "--ckpt", str(ckpt), "--frames", "3", "--scale", "0.25",
                     "--", *args[2:])
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = tmp_path / "run" / "video_spiral.mp4"  # default: the run folder, spiral for an LLFF-style scene

@@ -62,7 +62,8 @@ def paper_step() -> dict[str, float]:
     for name in ("points", "views", "cfc"):  # after the 10k-step warm-up
         module.terms[name].weight = 0.1
     logged: dict[str, float] = {}
-    module.log_dict = lambda values, **kwargs: logged.update({k: float(v) for k, v in values.items()})
+    module.log_dict = lambda values, **kwargs: logged.update(
+        {k: float(torch.as_tensor(v).detach()) for k, v in values.items()})  # a logged value, not a graph
     module.log = lambda name, value, **kwargs: None
     torch.manual_seed(1)
     module.log_step(module.backward_parts(batch, torch.Tensor.backward), batch)  # a step, without its optimiser

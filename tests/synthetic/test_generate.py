@@ -295,7 +295,11 @@ def test_factor_must_divide_resolution(tmp_path: Path, factors: tuple[int, ...])
     assert not (tmp_path / "scene").exists()
 
 
-def test_command_line_entry(tmp_path: Path) -> None:
-    sy.main([str(tmp_path / "cli"), "--height", "24", "--width", "32", "--n-frames", "2", "--factors", "1", "2"])
+def test_command_line_entry(tmp_path: Path, capsys) -> None:
+    from simplenerf.commands import main
+
+    main(["synthetic", str(tmp_path / "cli"), "--height", "24", "--width", "32", "--n-frames", "2", "--factors", "1",
+          "2"])
+    assert capsys.readouterr().out == f"{tmp_path / 'cli'}\n"
     assert (tmp_path / "cli" / "images_2" / "001.png").is_file()
     assert np.load(tmp_path / "cli" / "poses_bounds.npy").shape == (2, 17)

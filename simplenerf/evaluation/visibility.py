@@ -1,4 +1,5 @@
-"""Visibility masks of test views (SPEC 7): the test pixels whose surface the train views saw, by reference depth.
+"""Visibility masks of test views (supplement, Evaluation Details; the release's src/qa/00_Common/src/mask_generators/
+VisibilityMask02_NeRF_LLFF.py): the test pixels whose surface the train views saw, by reference depth.
 
 The paper evaluates masked scores over the pixels that at least two train views saw. Whether a train view saw a test
 pixel is decided by forward warping with bilinear splatting (as the authors' evaluation does), not by backward

@@ -82,6 +82,7 @@ def release_config(repo: ReleaseRepo, kind: str, n_views: int) -> dict:
         captured["configs"] = configs
         raise Captured
 
+    # `entry` is the release's entry script, patched by name: not every script defines every stage.
     saved = {k: getattr(entry, k) for k in ("start_training", "start_testing", "start_testing_videos",
                                             "start_testing_static_videos") if hasattr(entry, k)}
     entry.start_training = capture

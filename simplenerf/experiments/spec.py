@@ -171,6 +171,7 @@ def load_sweep(path: str | Path, base: Path | None = None) -> Sweep:
     parser = sweep_parser()
     try:
         cfg = parser.parse_path(str(path), defaults=True)
+        # jsonargparse renamed instantiate_classes to instantiate; either version works.
         sweep = (parser.instantiate if hasattr(parser, "instantiate") else parser.instantiate_classes)(cfg)
     except Exception as e:  # jsonargparse's ArgumentError: nested causes, the first line names the key
         lines = [line.strip().lstrip("- ").strip() for line in str(e).splitlines() if line.strip()]

@@ -69,7 +69,7 @@ def crop_rows(frame, rows: int):
     height * width is cut to rows * width and `height` becomes `rows`. Works on dicts and dataclasses (nested too)."""
     from lightning.fabric.utilities.apply_func import apply_to_collection
 
-    def get(name: str):
+    def get(name: str):  # a field of a dataclass item (`Frame`) or a key of a dict item (a user's data module)
         return frame.get(name) if isinstance(frame, dict) else getattr(frame, name, None)
 
     height, width = get("height"), get("width")
@@ -137,7 +137,7 @@ def time_rendering(
         "field_evaluations_per_ray": per_ray,
         "field_evaluations_per_s": per_ray * sum(rays) / seconds,
         "approx_matmul_tflops": matmul_flop_per_ray(model, training=False) * sum(rays) / seconds / 1e12,
-        "chunk": getattr(model, "hparams", {}).get("chunk"),
+        "chunk": model.hparams.get("chunk"),
         "peak_rss_gib": peak_rss_gib(),
         **cuda_peaks(model.device),
         "device": device_name(model.device),

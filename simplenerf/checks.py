@@ -10,7 +10,6 @@ The parts of a run declare their own pre-flight checks by a protocol (`ChecksMod
 from __future__ import annotations
 
 import sys
-import tempfile
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
@@ -18,7 +17,7 @@ import lightning as L
 import torch
 from lightning.pytorch.utilities import rank_zero_only
 
-from simplenerf.errors import CheckpointError, DataError, RunFolderError
+from simplenerf.errors import CheckpointError, DataError, RunFolderError, unwritable
 from simplenerf.module import SimpleNeRF
 
 
@@ -183,12 +182,8 @@ def prepare_fresh_fit(folder: Path, overwrite: bool) -> None:
 def check_writable(folders: list[Path]) -> None:
     """Creates each folder and writes (then deletes) a file in it: RunFolderError naming the first that fails."""
     for folder in folders:
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryFile(dir=folder):
-                pass
-        except OSError as e:
-            raise RunFolderError(f"cannot write to the run folder {folder}: {e.strerror or e}") from None
+        if (reason := unwritable(folder)) is not None:
+            raise RunFolderError(f"cannot write to the run folder {folder}: {reason}")
 
 
 def check_model_meets_data(model: SimpleNeRF, n_train: int | None, stage: str) -> None:

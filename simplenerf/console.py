@@ -15,7 +15,7 @@ from collections.abc import Callable
 from typing import Any
 
 from simplenerf import interrupts
-from simplenerf.errors import SimpleNeRFError
+from simplenerf.errors import SimpleNeRFError, Stopped
 
 PROG = "simplenerf"
 
@@ -119,7 +119,7 @@ def _class_suggestion(class_path: str, cause: str) -> str | None:
             return f"{match.group(1)}.{close[0]}" if close else None
         if match := re.search(r"Option '([^']+)' is not accepted", cause):
             module_name, _, class_name = class_path.rpartition(".")
-            cls = getattr(importlib.import_module(module_name), class_name)
+            cls = getattr(importlib.import_module(module_name), class_name)  # the config's class_path, by name
             # Options of the whole chain of constructors (a subclass may pass **kwargs on to its base).
             names = {name for klass in cls.__mro__ if "__init__" in vars(klass)
                      for name in inspect.signature(klass.__init__).parameters} - {"self", "args", "kwargs"}
@@ -187,6 +187,7 @@ LIBRARY_INPUT_ERRORS = (
 
 
 def _input_errors() -> tuple[type[BaseException], ...]:
+    # By name, so that this module imports neither library (see LIBRARY_INPUT_ERRORS).
     loaded = [getattr(sys.modules[module], name) for module, name in LIBRARY_INPUT_ERRORS if module in sys.modules]
     return (SimpleNeRFError, *loaded)
 
@@ -201,11 +202,11 @@ def run_tool(main_function: Callable[[], None], name: str = PROG) -> None:
     except (KeyboardInterrupt, SystemExit, Exception) as e:
         if isinstance(e, _input_errors()):
             print(f"{name}: error: {e}", file=sys.stderr)
-            sys.exit(getattr(e, "exit_status", 2))
+            sys.exit(e.exit_status if isinstance(e, SimpleNeRFError) else 2)
         # After a signal, any error is its consequence: a library that was running native code (pycolmap's SfM) may
         # turn the pending interrupt into its own exception. Without a signal, only KeyboardInterrupt is a stop.
         if interrupts.received is None and not isinstance(e, KeyboardInterrupt):
             raise
-        signum = interrupts.received or getattr(e, "signum", None) or signal.SIGINT
+        signum = interrupts.received or (e.signum if isinstance(e, Stopped) else None) or signal.SIGINT
         print(f"{name}: error: stopped by {interrupts.name(signum)} before it finished", file=sys.stderr)
         sys.exit(interrupts.exit_status(signum))

@@ -1,5 +1,10 @@
 """Errors the command line reports as one clear line (`simplenerf.console.run_tool`), instead of a traceback."""
 
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
 
 class SimpleNeRFError(Exception):
     """Base class: bad input or setup the user can fix; the message says what and where."""
@@ -38,3 +43,15 @@ class Stopped(SimpleNeRFError):
         super().__init__(message)
         self.signum = signum
         self.exit_status = 128 + int(signum)
+
+
+def unwritable(folder: Path) -> str | None:
+    """Why `folder` cannot be created and written (a file written there, then deleted), or None if it can: the reason
+    both the run-folder check and process-data's output check put in their error."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as e:
+        return str(e.strerror or e)
+    return None

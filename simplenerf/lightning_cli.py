@@ -84,7 +84,7 @@ class OneLineErrorParser(LightningArgumentParser):
     def error(self, message: str, ex: Exception | None = None) -> NoReturn:
         if not self.exit_on_error:
             super().error(message, ex)
-        parser = getattr(ex, "subcommand_parser", None) or self
+        parser = getattr(ex, "subcommand_parser", None) or self  # jsonargparse sets it on a subcommand's errors only
         line, hint = parser_error_line(message, parser)
         sys.stderr.write(f"{PROG}: error: {line}\n{hint}\n")
         sys.exit(2)
@@ -319,7 +319,7 @@ def check_config_files(args: list[str]) -> None:
         except OSError as e:
             raise SimpleNeRFError(f"cannot read config file {path}: {e.strerror or e}") from None
         except yaml.YAMLError as e:
-            mark = getattr(e, "problem_mark", None)
+            mark = getattr(e, "problem_mark", None)  # only yaml's MarkedYAMLError subclasses have these
             where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else "somewhere"
             what = " ".join(str(part) for part in (getattr(e, "context", None), getattr(e, "problem", None)) if part)
             raise SimpleNeRFError(f"config file {path}: YAML syntax error at {where}: {what or e}") from None

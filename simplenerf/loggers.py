@@ -82,6 +82,7 @@ class WandbLogger(_LightningWandbLogger):
             Path(self._save_dir).mkdir(parents=True, exist_ok=True)
         run = super().experiment
         if new and self._experiment is not None:  # started here, on global rank 0
+            # W&B's run objects differ by mode (a disabled run is a stub without these attributes).
             if getattr(run, "offline", False):
                 folder = run.settings.sync_dir
                 print(f"W&B: offline run in {folder} (upload it later with `wandb sync {folder}`)", flush=True)

@@ -46,7 +46,7 @@ def run_settings(config: Any, datamodule: Any) -> dict[str, Any]:
     `IGNORED_DATA`), the scene it reads (`cache_key()`: the resolved folder), its train frames and size, and the
     model's arguments (except `IGNORED_MODEL`). `config` is the subcommand's parsed config (a jsonargparse Namespace
     or a dict)."""
-    config = config.as_dict() if hasattr(config, "as_dict") else dict(config)
+    config = config.as_dict() if hasattr(config, "as_dict") else dict(config)  # jsonargparse Namespace or dict
     data = config.get("data") or {}
     init_args = dict(data.get("init_args") or {}) if isinstance(data, dict) else {}
     settings: dict[str, Any] = {

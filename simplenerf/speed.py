@@ -35,6 +35,9 @@ import lightning as L
 import torch
 from torch import nn
 
+from simplenerf.data.scene import SceneDataModule
+from simplenerf.module import SimpleNeRF
+
 GIB = 2**30
 
 
@@ -77,17 +80,13 @@ def device_name(device: torch.device) -> str:
     return platform.processor() or "cpu"
 
 
-def _augmentations(model: nn.Module) -> list[nn.Module]:
-    return list(getattr(model, "augmentations", None) or [])
-
-
-def field_evaluations_per_ray(model: nn.Module, training: bool = True) -> int:
-    """E_train or E_render (module docstring) of a SimpleNeRF-like module (`model.nerf`, `model.augmentations`)."""
+def field_evaluations_per_ray(model: SimpleNeRF, training: bool = True) -> int:
+    """E_train or E_render (module docstring) of a SimpleNeRF module (`model.nerf`, `model.augmentations`)."""
     coarse, fine = model.nerf.num_coarse, model.nerf.num_coarse + model.nerf.num_fine
     total = coarse + fine
     if training:
-        for aug in _augmentations(model):
-            total += fine if getattr(aug, "stage", "coarse") == "fine" else coarse
+        for aug in model.augmentations:
+            total += fine if aug.stage == "fine" else coarse
     return total
 
 
@@ -96,14 +95,14 @@ def linear_macs(module: nn.Module) -> int:
     return sum(m.in_features * m.out_features for m in module.modules() if isinstance(m, nn.Linear))
 
 
-def matmul_flop_per_ray(model: nn.Module, training: bool = True) -> float:
+def matmul_flop_per_ray(model: SimpleNeRF, training: bool = True) -> float:
     """Approximate matrix-product FLOP per ray (Linear layers only; x3 for forward + backward when training)."""
     nerf = model.nerf
     coarse, fine = nerf.num_coarse, nerf.num_coarse + nerf.num_fine
     macs = coarse * linear_macs(nerf.coarse) + fine * linear_macs(nerf.fine)
     if training:
-        for aug in _augmentations(model):
-            samples = fine if getattr(aug, "stage", "coarse") == "fine" else coarse
+        for aug in model.augmentations:
+            samples = fine if aug.stage == "fine" else coarse
             macs += samples * linear_macs(aug.field)
     return 2.0 * macs * (3 if training else 1)
 
@@ -191,14 +190,14 @@ def cuda_peaks(device: torch.device) -> dict[str, float | None]:
     }
 
 
-def rays_per_iteration(datamodule: L.LightningDataModule) -> tuple[int, int]:
+def rays_per_iteration(datamodule: SceneDataModule) -> tuple[int, int]:
     """(random rays, sparse-depth rays) a training batch of `datamodule` holds."""
-    return int(datamodule.rays_per_batch), int(getattr(datamodule, "sparse_rays_per_batch", 0) or 0)
+    return int(datamodule.rays_per_batch), int(datamodule.sparse_rays_per_batch)
 
 
 def time_training(
-    model: L.LightningModule,
-    datamodule: L.LightningDataModule,
+    model: SimpleNeRF,
+    datamodule: SceneDataModule,
     steps: int,
     warmup: int,
     precision: str,

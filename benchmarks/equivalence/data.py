@@ -82,6 +82,7 @@ def release_config(repo: ReleaseRepo, kind: str, n_views: int) -> dict:
         captured["configs"] = configs
         raise Captured
 
+    # `entry` is the release's entry script, patched by name: not every script defines every stage.
     saved = {k: getattr(entry, k) for k in ("start_training", "start_testing", "start_testing_videos",
                                             "start_testing_static_videos") if hasattr(entry, k)}
     entry.start_training = capture
@@ -345,7 +346,8 @@ def data_rows(release_src: Path, work_dir: Path, scene_dir: Path, kind: str, n_v
     else:
         rows.append(flag(group, "validation frame numbers", True,
                          f"deliberate difference: ours {list(split.val)}, release {rel_val.tolist()} (ours: the "
-                         "middle test frame, SPEC 6; validation renders pictures only, no training input; the "
+                         "middle test frame, as the release's LLFF split TrainTestCreator01_UniformSparseSampling.py "
+                         "chooses it; validation renders pictures only, no training input; the "
                          "validation rows below use the release's frames)"))
 
     # 2. cameras
@@ -526,7 +528,7 @@ NOTES = """Notes
 - Sparse depth: synthetic 3D points (seeded), seen by >= 2 train views, one per rounded pixel; the release reads them
   from its CSVs, ours gets them in place of its SfM (sparse_depth.load_or_compute_sparse_depth patched at run time).
   Each codebase's own SfM (COLMAP CLI vs pycolmap; the release gives COLMAP cx = W/2 with pixel centres at +0.5,
-  ours corrects the half pixel, SPEC 5) is not compared here.
+  ours corrects the half pixel, `sfm.colmap`) is not compared here.
 - Deliberate differences (listed in the rows): sparse-depth rays through the keypoint (ours) vs the nearest pixel
   (release); RealEstate-10K validation frames (ours the middle test frame; release 3 frames); the release's validation
   NDC near plane (a release bug: 0.75 x the validation frames' min bound instead of the training near 1)."""

@@ -1,7 +1,9 @@
 """LLFF scenes (`nerf_llff_data/<scene>/{images_N, poses_bounds.npy}`): loading, the paper's split, the data module.
 
-Split (SPEC 6): test = every 8th frame; train = round(linspace(-1, N, n + 2))[1:-1] indexing the N non-test frames;
-validation = the middle test frame. n_views None is the dense split of the reference NeRF (SPEC 7): every non-test
+Split (the release's src/database_utils/nerf_llff/train_test_creators/TrainTestCreator01_UniformSparseSampling.py;
+supplement, Database Details): test = every 8th frame; train = round(linspace(-1, N, n + 2))[1:-1] indexing the N
+non-test frames; validation = the middle test frame. n_views None is the dense split of the reference NeRF (the
+release's train set 1, num_train_frames -1): every non-test
 frame trains. LLFF's test set does not depend on n, so one dense NeRF per scene serves every view count.
 Bounds come from the train frames only; the scene is scaled by 1 / (0.75 * min bound) so the NDC near plane 1 lies
 in front of every train camera, and recentred on the average train pose.

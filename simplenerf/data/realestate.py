@@ -6,7 +6,8 @@ the image width (fx, cx) and height (fy, cy), and a row-major 3x4 WORLD-TO-CAMER
 y down, z forward). Frame `timestamp` is `frames/<timestamp>.png` at any resolution (sizes are read from the images).
 The paper uses 50 consecutive frames per video at 1024x576, bounds fixed to [1, 100] in file units.
 
-Split (SPEC 6, the paper's supplement, Table "Train and test frame numbers"), frame numbers within the clip:
+Split (the supplement's Table "Train and test frame numbers"; the release's src/database_utils/real_estate/
+train_test_creators/TrainTestCreator01.py), frame numbers within the clip:
 train 2 views {10, 20}, 3 views {10, 20, 30}, 4 views {0, 10, 20, 30}; test = every frame in
 [min train - 5, max train + 5] that lies in the clip and is not a train frame (19 / 28 / 32 frames); validation = the
 middle test frame. The test set depends on the view count, so the dense reference NeRF (n_views None) is trained on

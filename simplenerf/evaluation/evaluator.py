@@ -1,5 +1,6 @@
 """Evaluation outputs of `test` (and renders of `predict`): images, depths, visibility masks, per-frame CSV and a
-summary JSON, following the paper's protocol (SPEC 7): full-frame scores and scores over each test frame's
+summary JSON, following the paper's protocol (Sec. 5.1, supplement Evaluation Details): full-frame scores and scores
+over each test frame's
 visibility mask (`simplenerf.evaluation.visibility`), when the scene has reference depth.
 
 Everything is written to `<dir>.partial/` first and moved into place only when the run completes, so a crash or a
@@ -150,7 +151,7 @@ class Evaluator(L.Callback):
     the CLI; else a copy of the run's, when there is one) and `run.json`. A folder of earlier results is kept, renamed
     `<folder>.<time it was written>` (`archive_path`).
 
-    Scores (SPEC 7): psnr, ssim, lpips, depth_mae, depth_srocc over the full frame, and masked_* over the frame's
+    Scores (Sec. 5.1): psnr, ssim, lpips, depth_mae, depth_srocc over the full frame, and masked_* over the frame's
     visibility mask. Masks are computed at test setup from the data module's scene (`.scene.views` with reference
     depth, `.scene.split.train`) and exist only when the scene has reference depth; otherwise, and for an empty
     mask, the masked scores are null. Depth metrics need reference depth too. A score that cannot be computed (e.g.

@@ -1,4 +1,5 @@
-"""Reference depth from a dense NeRF (SPEC 7: "reference depth = a NeRF trained on all non-test frames").
+"""Reference depth from a dense NeRF (Sec. 5.1: "a NeRF model with dense input views"; the release's
+data/DenseNeRF/runs/training/train1001/Configs.json trains it on train set 1, every non-test frame).
 
 A NeRF trained with `n_views: null` (configs/dense/) renders the fine depth of every frame of its scene, train and
 test alike (the visibility masks warp train views' depth into test views). Each frame is written as

@@ -1,4 +1,5 @@
-"""Visibility masks of test views (SPEC 7): the test pixels whose surface the train views saw, by reference depth.
+"""Visibility masks of test views (supplement, Evaluation Details; the release's src/qa/00_Common/src/mask_generators/
+VisibilityMask02_NeRF_LLFF.py): the test pixels whose surface the train views saw, by reference depth.
 
 The paper evaluates masked scores over the pixels that at least two train views saw. Whether a train view saw a test
 pixel is decided by forward warping with bilinear splatting (as the authors' evaluation does), not by backward
@@ -185,26 +186,6 @@ def visibility_counts(
     return counts
 
 
-def visibility_mask(
-    test_depth: torch.Tensor,
-    test_intrinsics: torch.Tensor,
-    test_c2w: torch.Tensor,
-    train_depths: torch.Tensor,
-    train_intrinsics: torch.Tensor,
-    train_c2w: torch.Tensor,
-    min_views: int = MIN_VIEWS,
-    relative_tolerance: float = RELATIVE_TOLERANCE,
-) -> torch.Tensor:
-    """The test pixels seen by at least `min_views` train views (arguments as in `visibility_counts`).
-
-    Returns:
-        [H, W] bool, True on pixels to evaluate.
-    """
-    counts = visibility_counts(test_depth, test_intrinsics, test_c2w, train_depths, train_intrinsics, train_c2w,
-                               relative_tolerance)
-    return counts >= min_views
-
-
 def scene_visibility_masks(
     views: Views,
     train: Sequence[int],
@@ -218,7 +199,8 @@ def scene_visibility_masks(
     Args:
         views: all frames of the scene, with reference depths (`views.depths` [N, H, W]).
         train, test: frame indices into `views`.
-        min_views, relative_tolerance: see `visibility_mask`.
+        min_views: a pixel is evaluated when at least this many train views see it (the release: 2).
+        relative_tolerance: see `seen_by_view`.
         progress: show a progress bar over the test frames.
 
     Returns:
@@ -229,10 +211,11 @@ def scene_visibility_masks(
     train = list(train)
     masks = {}
     for i in tqdm(list(test), desc="visibility masks", unit="frame", disable=not progress):
-        masks[i] = visibility_mask(
+        counts = visibility_counts(
             views.depths[i], views.intrinsics[i], views.c2w[i], views.depths[train], views.intrinsics[train],
-            views.c2w[train], min_views, relative_tolerance,
+            views.c2w[train], relative_tolerance,
         )
+        masks[i] = counts >= min_views
     return masks
 
 
@@ -245,5 +228,4 @@ __all__ = [
     "seen_by_view",
     "splat",
     "visibility_counts",
-    "visibility_mask",
 ]

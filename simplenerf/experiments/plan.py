@@ -1,4 +1,5 @@
-"""A sweep as jobs: the stages of the paper's evaluation (Sec. 5.1 and SPEC 7) with their dependencies.
+"""A sweep as jobs: the stages of the paper's evaluation (Sec. 5.1, supplement Evaluation Details) with their
+dependencies.
 
     dense (per scene; RealEstate-10K: per scene and view count)  dense reference NeRF, configs/dense/
       -> depth (same)            its depth of every frame (simplenerf.evaluation.reference_depth)

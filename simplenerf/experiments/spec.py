@@ -3,7 +3,8 @@ sweep with one line naming it, before anything runs).
 
 A sweep is scenes x view counts x models x seeds (the paper's Tables 1-3: 8 LLFF scenes and RealEstate-10K, 2 / 3 / 4
 views, SimpleNeRF, DS-NeRF and the ablations), plus a dense reference NeRF per scene for the depth metrics and the
-visibility masks (SPEC 7, "reference depth = a NeRF trained on all non-test frames"), the budget, the executor's
+visibility masks (Sec. 5.1, "a NeRF model with dense input views", trained on all non-test frames), the budget, the
+executor's
 resources and where everything goes. `simplenerf.experiments.plan` turns it into jobs.
 
 Formats: a scene's `format` (`llff`, `realestate`) picks, in every model and in the dense entry, the config files of
@@ -170,6 +171,7 @@ def load_sweep(path: str | Path, base: Path | None = None) -> Sweep:
     parser = sweep_parser()
     try:
         cfg = parser.parse_path(str(path), defaults=True)
+        # jsonargparse renamed instantiate_classes to instantiate; either version works.
         sweep = (parser.instantiate if hasattr(parser, "instantiate") else parser.instantiate_classes)(cfg)
     except Exception as e:  # jsonargparse's ArgumentError: nested causes, the first line names the key
         lines = [line.strip().lstrip("- ").strip() for line in str(e).splitlines() if line.strip()]

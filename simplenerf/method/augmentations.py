@@ -67,44 +67,25 @@ class PointsAugmentation(Augmentation):
     """The paper's points augmentation (Sec. 4.1, L_ap): by default the paper's MLP whose density sees gamma(p, 0, 3)
     only, the other bands going to the colour branch."""
 
-    def __init__(
-        self,
-        name: str = "points",
-        field: Field | None = None,
-        mask: ReliabilityMask | None = None,
-        depth_weight: float = 0.1,
-        stage: Literal["coarse", "fine"] = "coarse",
-    ) -> None:
+    def __init__(self, name: str = "points", field: Field | None = None, **kwargs) -> None:
         """
         Args:
             name: name of its masked depth term (L_ap).
             field: the simplified field; null: `RadianceField(density_bands=3, residual_bands_to_color=True)`.
-            mask: null: the paper's `PatchReprojectionMask()`.
-            depth_weight: lambda_3.
-            stage: the main model's samples it is evaluated at and the depth it is tied to (the paper: coarse).
+            kwargs: `mask`, `depth_weight` (lambda_3), `stage`: as in `Augmentation`.
         """
         field = field if field is not None else RadianceField(density_bands=3, residual_bands_to_color=True)
-        super().__init__(name, field, mask, depth_weight, stage)
+        super().__init__(name, field, **kwargs)
 
 
 class ViewsAugmentation(Augmentation):
     """The paper's views augmentation (Sec. 4.1, L_av): by default the paper's MLP without view directions."""
 
-    def __init__(
-        self,
-        name: str = "views",
-        field: Field | None = None,
-        mask: ReliabilityMask | None = None,
-        depth_weight: float = 0.1,
-        stage: Literal["coarse", "fine"] = "coarse",
-    ) -> None:
+    def __init__(self, name: str = "views", field: Field | None = None, **kwargs) -> None:
         """
         Args:
             name: name of its masked depth term (L_av).
             field: the simplified field; null: `RadianceField(view_dependent=False)`.
-            mask: null: the paper's `PatchReprojectionMask()`.
-            depth_weight: lambda_4.
-            stage: the main model's samples it is evaluated at and the depth it is tied to (the paper: coarse).
+            kwargs: `mask`, `depth_weight` (lambda_4), `stage`: as in `Augmentation`.
         """
-        super().__init__(name, field if field is not None else RadianceField(view_dependent=False), mask, depth_weight,
-                         stage)
+        super().__init__(name, field if field is not None else RadianceField(view_dependent=False), **kwargs)

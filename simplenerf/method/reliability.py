@@ -127,9 +127,10 @@ def patch_reprojection_error(
 
 
 def ternary_mask(error_main: torch.Tensor, error_other: torch.Tensor, threshold: float) -> torch.Tensor:
-    """Which of two depths is reliable (paper eq. 6, SPEC 4.5).
+    """Which of two depths is reliable (paper eq. 6).
 
-    Every comparison is strict (<), as SPEC 4 states, where the paper's equation has e_other <= e_main and <= e_tau:
+    Every comparison is strict (<), as in the release (src/loss_functions/PointsAugmentationDepthLoss02.py,
+    compute_loss_nerf), where the paper's equation has e_other <= e_main and <= e_tau:
     so a tie gives 0, and so does an error exactly at the threshold. Invalid rays carry e = inf and give 0.
 
     Args:
@@ -175,7 +176,9 @@ def masked_depth_loss(
         z_other: [R] depth of the other model (augmented, or main fine).
         mask: [R] ternary mask, or None to trust every ray: plain mean((z_main - z_other)^2), gradient to both.
         direction: "bidirectional" (the paper): 1{m=+1} (z_main - sg(z_other))^2 + 1{m=-1} (sg(z_main) - z_other)^2;
-            "one_way" (what the release effectively trains, SPEC 3): only the m = +1 term.
+            "one_way" (what the release effectively trains: compute_depth_mse of src/loss_functions/
+            PointsAugmentationDepthLoss02.py and its siblings zeroes its inputs in place, so the m = -1 term is always
+            0): only the m = +1 term.
 
     Returns:
         [] scalar loss.

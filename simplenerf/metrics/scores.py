@@ -4,7 +4,8 @@ Image conventions: images are channels-last float tensors in [0, 1], batched as 
 [H, W, 3], is what `evaluate_frame` takes). Before PSNR, SSIM and LPIPS, prediction and target are quantised the way
 a saved PNG would be, round(clip(x, 0, 1) * 255), so that the reported numbers can be reproduced from stored images.
 
-Definitions (SPEC 7, checked line by line against the authors' evaluation code, docs/evaluation.md):
+Definitions (Sec. 5.1, checked line by line against the authors' evaluation code, src/qa/*/src/*.py of the release;
+docs/evaluation.md):
 - PSNR: 10 log10(255^2 / MSE) per frame; with a mask the MSE runs over the masked pixels only. Identical images would
   give +inf, which is capped at `PSNR_CAP` (100 dB), full-frame and masked alike, so that means over frames stay finite
   and a perfect frame always reports exactly `PSNR_CAP`.
@@ -213,7 +214,8 @@ def _valid_depths(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | Non
 
 
 def _median(x: torch.Tensor) -> torch.Tensor:
-    # torch.median returns the lower middle element for even counts; the SPEC's median averages the two middles.
+    # torch.median returns the lower middle element for even counts; the release's numpy.median (src/qa/06_DepthMAE/
+    # src/DepthMAE02_NeRF_LLFF.py) averages the two middles.
     ordered = torch.sort(x).values
     n = ordered.numel()
     return 0.5 * (ordered[(n - 1) // 2] + ordered[n // 2])

@@ -1,4 +1,6 @@
-"""Radiance fields: the field contract and the NeRF MLP F1 (density + feature) and F2 (colour), paper Sec. 3, SPEC 1.
+"""Radiance fields: the field contract and the NeRF MLP F1 (density + feature) and F2 (colour): paper Sec. 3 and
+its architecture figure; the layers as in the release's src/models/SimpleNeRF01.py (DS-NeRF's network: supplement,
+Implementation Details).
 
 The contract: a `Field` is an `nn.Module` called with the `Samples` of a batch of rays and returning `FieldOutputs`
 (raw density and colour per sample). It reads what it needs from the samples (raw NDC positions, directions, or their

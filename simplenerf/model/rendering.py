@@ -1,4 +1,5 @@
-"""Volume rendering with the conventions of the authors' release (paper Sec. 3, SPEC 2).
+"""Volume rendering with the conventions of the authors' release (paper Sec. 3; src/models/SimpleNeRF01.py,
+volume_rendering and get_z_vals_coarse / get_z_vals_fine).
 
 Naming: t = NDC sample positions [R, S]; delta = interval lengths; sigma = density; alpha = 1 - exp(-sigma delta);
 T = transmittance; w = weights = alpha T. Depth is always metric camera-z depth (see `rays.ndc_to_metric_t`).

@@ -6,11 +6,11 @@ Numbers are strings exactly as printed (so "0.14" keeps its two decimals and a t
 `masked_depth_mae`, `masked_depth_srocc` for scores on the pixels seen by at least two train views, and `lpips`, ...,
 `depth_srocc` for full-frame scores.
 
-The paper's main tables are masked scores: SPEC section 8 gives SimpleNeRF's masked 2-view LLFF means as PSNR 19.57,
-SSIM 0.650, LPIPS 0.269, depth MAE 0.142, SROCC 0.848, which are Table 1's 2-view SimpleNeRF row and the depth table's
-LLFF row. The supplement's full-frame ("values within parenthesis") and per-scene tables have no body in
-`paper/SimpleNeRF.tex`; the few full-frame numbers SPEC section 8 quotes from them are in FULL_FRAME and PER_SCENE,
-marked with that source.
+The paper's main tables are masked scores: the release's runs/testing/test1011/QA_Scores.json gives SimpleNeRF's
+masked 2-view LLFF means as PSNR 19.57, SSIM 0.650, LPIPS 0.269, depth MAE 0.142, SROCC 0.848, which are Table 1's
+2-view SimpleNeRF row and the depth table's LLFF row. The supplement's full-frame ("values within parenthesis") and
+per-scene tables have no body in `paper/SimpleNeRF.tex`; FULL_FRAME and PER_SCENE hold a few of those numbers, rounded
+as the paper prints them, from the release's published scores (runs/testing/, a copy in ../shared/reference_scores).
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ import numpy as np
 
 from simplenerf.errors import DataError
 
-# The scenes the published means are over (SPEC section 6).
+# The scenes the published means are over (supplement, Database Details; the RealEstate-10K ids: the release's
+# src/database_utils/real_estate/data_organizers/VideoNameMapper.py, scenes 0, 1, 3, 4, 6).
 LLFF_SCENES = ("fern", "flower", "fortress", "horns", "leaves", "orchids", "room", "trex")
 REALESTATE_SCENES = ("000c3ab189999a83", "000db54a47bd43fe", "0017ce4c6a39d122", "002ae53df0e0afe2", "0043978734eec081")
 
@@ -39,7 +40,7 @@ class PaperTable:
     caption: str
     scenes: tuple[str, ...]
     rows: dict[str, Scores]
-    # scene -> model -> scores, for the per-scene tables (only what SPEC quotes, see PER_SCENE).
+    # scene -> model -> scores, for the per-scene tables (only the few in PER_SCENE).
     per_scene: dict[str, dict[str, Scores]] = field(default_factory=dict)
 
 
@@ -89,7 +90,9 @@ ABLATIONS = {
     "w/ smaller n/w as points aug": (("0.0740", "0.38"), ("0.2849", "0.15")),
 }
 
-# Full-frame SimpleNeRF scores quoted in SPEC section 8 (from the supplement, not in the .tex).
+# Full-frame SimpleNeRF scores (the supplement's tables, not in the .tex): the release's runs/testing/test1011/
+# QA_Scores.json (PSNR02 17.5668, ...) and, per scene, QA_Scores/predicted_frames/PSNR02_SceneWise.csv (LLFF) and
+# test0011's PSNR01_SceneWise.csv (scene 0 = 000c3ab189999a83, VideoNameMapper.py), rounded as the paper prints.
 FULL_FRAME = {
     "llff": {"SimpleNeRF": {(2, "psnr"): "17.57", (2, "ssim"): "0.553", (2, "lpips"): "0.390",
                             (2, "depth_mae"): "0.278", (2, "depth_srocc"): "0.753"}},

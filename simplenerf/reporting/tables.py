@@ -11,8 +11,9 @@ scores choice maps metrics to keys: "masked" -> `masked_<metric>`, "full" -> `<m
 "masked (full)" like the supplement's "values within parenthesis show unmasked scores".
 
 Masked is the default because the paper's main tables are masked scores (pixels seen by at least two train views,
-Sec. 5.1 and the supplement; SPEC 7-8: the masked 2-view LLFF means PSNR 19.57 / SSIM 0.650 / LPIPS 0.269 are exactly
-Table 1's SimpleNeRF row), so measured rows compare with the published ones only in this mode.
+Sec. 5.1 and the supplement's Evaluation Details; the release's masked 2-view LLFF means, runs/testing/test1011/
+QA_Scores.json, PSNR 19.57 / SSIM 0.650 / LPIPS 0.269, are exactly Table 1's SimpleNeRF row), so measured rows compare
+with the published ones only in this mode.
 
 This module imports no torch or Lightning, so the table command starts at once.
 """
@@ -155,14 +156,14 @@ def caption(scores: str, per_scene: bool, paper: str | None = None, repeats: boo
     if heldout:
         text += " Held-out err.: relative depth error at held-out SfM points (`simplenerf heldout-depth`), per run."
     if paper is not None and per_scene:
-        text += (" (paper): the published per-scene numbers SPEC section 8 quotes (the supplement's per-scene tables "
-                 "have no body in the .tex).")
+        text += (" (paper): the per-scene numbers of the authors' published scores (their release's runs/testing/, "
+                 "QA_Scores/*_SceneWise.csv; the supplement's per-scene tables have no body in the .tex).")
     elif paper is not None:
         table = TABLES[paper]
         text += (f" (paper): published numbers as printed, {table.caption} ({table.label}), means over "
                  f"{len(table.scenes)} scenes.")
         if scores != "masked":
-            text += " Published full-frame numbers: only those SPEC section 8 quotes."
+            text += " Published full-frame numbers: only SimpleNeRF's 2-view LLFF means."
     return text
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simplenerf.errors import DataError
+from simplenerf.errors import DataError, unwritable
 
 MARKER = ".simplenerf-process-data.json"  # what process-data wrote into its output (what --overwrite may replace)
 # A plausible camera (`judge`): horizontal field of view, focal length against the EXIF prior, radial distortion.
@@ -76,13 +76,8 @@ def check_output_folder(images_dir: Path, output_dir: Path, overwrite: bool) -> 
 
 def check_writable_parent(output_dir: Path) -> None:
     """DataError unless the folder that will hold `output_dir` can be created and written."""
-    parent = output_dir.parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=parent):
-            pass
-    except OSError as e:
-        raise DataError(f"cannot write the output {output_dir}: {parent}: {e.strerror or e}") from None
+    if (reason := unwritable(output_dir.parent)) is not None:
+        raise DataError(f"cannot write the output {output_dir}: {output_dir.parent}: {reason}")
 
 
 def replace_output(partial: Path, output_dir: Path) -> None:

@@ -1,6 +1,7 @@
 """Sparse depth from structure-from-motion with known poses: DS-NeRF's depth prior, computed in-process with pycolmap.
 
-Pipeline (SPEC 5), on the TRAIN views only and at training resolution:
+Pipeline (DS-NeRF's, as the release runs it: src/prior_generators/sparse_depth/Tester01.py, called by
+DepthEstimator02_NeRF_LLFF.py), on the TRAIN views only and at training resolution:
 SIFT features -> exhaustive matching with RANSAC geometric verification -> triangulation with the given poses held
 fixed (COLMAP's point_triangulator: triangulate, merge/complete tracks, bundle-adjust the points only, filter by
 reprojection error and triangulation angle), keeping two-view tracks, which are all there is with two views.

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import lightning as L
 
+from simplenerf.data.scene import SceneDataModule
+from simplenerf.module import SimpleNeRF
 from simplenerf.viewer.server import Viewer, check_port
 
 
@@ -33,12 +35,12 @@ class TrainingViewer(L.Callback):
         """A taken port stops the run before anything is written (`SimpleNeRFCLI` calls this first)."""
         check_port(self.host, self.port)
 
-    def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+    def on_fit_start(self, trainer: L.Trainer, pl_module: SimpleNeRF) -> None:
         if not trainer.is_global_zero:
             return
-        data = trainer.datamodule
+        data: SceneDataModule = trainer.datamodule
         out = Path(trainer.default_root_dir) / "viewer"
-        self.viewer = Viewer(pl_module, data.scene, data.near, out, getattr(data, "sparse_depth", None), self.host,
+        self.viewer = Viewer(pl_module, data.scene, data.near, out, data.sparse_depth, self.host,
                              self.port, refresh_seconds=self.refresh_seconds)
         self.viewer.step = trainer.global_step
         print(f"viewer: open {self.viewer.url} in a browser to watch the training", flush=True)

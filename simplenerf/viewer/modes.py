@@ -26,6 +26,7 @@ import torch
 
 from simplenerf.geometry.rays import RayBundle
 from simplenerf.geometry.views import Views
+from simplenerf.module import SimpleNeRF
 from simplenerf.viz.pictures import colorize_depth, grey_picture, to_uint8
 
 ModeKind = Literal["rgb", "depth", "accumulation", "coarse_fine", "augmented_depth", "mask"]
@@ -60,13 +61,13 @@ class Picture:
     depth: np.ndarray
 
 
-def render_modes(model) -> list[RenderMode]:
+def render_modes(model: SimpleNeRF) -> list[RenderMode]:
     """Every mode a model offers: the fixed ones, each augmentation's depth, and each depth pair's mask (its
     augmentations' and, with a coarse-fine mask, "cfc"; none without masks)."""
     modes = [RenderMode("rgb"), RenderMode("depth"), RenderMode("accumulation"), RenderMode("coarse_fine")]
     modes += [RenderMode("augmented_depth", aug.name) for aug in model.augmentations]
     mask_names = [aug.name for aug in model.augmentations if aug.mask is not None]
-    if getattr(model, "coarse_fine_mask", None) is not None:
+    if model.coarse_fine_mask is not None:
         mask_names.append("cfc")
     return modes + [RenderMode("mask", name) for name in mask_names]
 

@@ -26,6 +26,7 @@ except ModuleNotFoundError:  # an install without the extra: one line, not a tra
 
 from simplenerf.data.datasets import SparseDepthPool
 from simplenerf.data.scene import Scene
+from simplenerf.module import SimpleNeRF
 from simplenerf.viewer.camera import (
     ViewerCamera,
     camera_from_viser,
@@ -74,7 +75,7 @@ class Viewer:
 
     def __init__(
         self,
-        model,
+        model: SimpleNeRF,
         scene: Scene,
         near: float,
         out_dir: Path,

@@ -68,7 +68,7 @@ def publish_picture(trainer: L.Trainer, key: str, picture: np.ndarray, file_name
     rank 0, writes it to `<trainer.default_root_dir>/val/<file_name>`."""
     if log:
         for logger in trainer.loggers:
-            log_image = getattr(logger, "log_image", None)
+            log_image = getattr(logger, "log_image", None)  # Lightning's Logger has no image method; W&B's has
             if log_image is not None:
                 extra = {} if caption is None else {"caption": [caption]}
                 log_image(key=key, images=[picture], step=trainer.global_step, **extra)

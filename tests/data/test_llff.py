@@ -9,7 +9,7 @@ from simplenerf.errors import DataError
 from simplenerf.geometry.rays import ndc_to_metric_t, project
 from tests.conftest import require_shared
 
-# SPEC 6: frame counts and the paper's train frames (original frame numbers).
+# Frame counts and the train frames of the release's TrainTestCreator01_UniformSparseSampling.py (original numbers).
 FRAME_COUNTS = {"fern": 20, "flower": 34, "fortress": 42, "horns": 62, "leaves": 26, "orchids": 25, "room": 41,
                 "trex": 55}
 TRAIN_FRAMES = {

@@ -32,7 +32,7 @@ from simplenerf.evaluation.visibility import scene_visibility_masks
 from simplenerf.metrics.scores import PSNR_CAP
 from simplenerf.model.nerf import FrameRender
 from tests.conftest import REPO, shared_dir
-from tests.metrics.test_scores import lpips_weights
+from tests.metrics.test_scores import assert_perfect_scores, lpips_weights
 from tests.test_cli import run, run_args
 
 SUMMARY_KEYS = ["scene", "n_views", "frames", *ALL_METRICS, "checkpoint", "git_commit", "config"]
@@ -79,12 +79,7 @@ def test_perfect_prediction_scores_and_outputs(synthetic_scene, tmp_path) -> Non
     summary = json.loads((out / "summary.json").read_text())
     assert list(summary) == SUMMARY_KEYS
     assert summary["scene"] == synthetic_scene.name and summary["n_views"] == 2 and summary["frames"] == 3
-    for prefix in ("", "masked_"):
-        assert summary[f"{prefix}psnr"] == PSNR_CAP
-        assert summary[f"{prefix}ssim"] == pytest.approx(1.0, abs=1e-12)
-        assert summary[f"{prefix}lpips"] == 0.0
-        assert summary[f"{prefix}depth_mae"] == 0.0
-        assert summary[f"{prefix}depth_srocc"] == pytest.approx(1.0, abs=1e-12)
+    assert_perfect_scores(summary)
     assert summary["checkpoint"] is None  # tested with the module's own weights
     assert summary["config"] == str(out / "config.yaml") and (out / "config.yaml").read_text() == "model: {}\n"
 

@@ -10,6 +10,7 @@ import torch
 
 from simplenerf.data.llff import load_llff_scene
 from simplenerf.evaluation.visibility import (
+    MIN_VIEWS,
     RELATIVE_TOLERANCE,
     SNAP,
     forward_warp_depth,
@@ -17,7 +18,6 @@ from simplenerf.evaluation.visibility import (
     seen_by_view,
     splat,
     visibility_counts,
-    visibility_mask,
 )
 from simplenerf.geometry.rays import pixel_rays, project
 from simplenerf.synthetic.generate import build_scene, trace_rays, trace_view
@@ -114,10 +114,10 @@ def test_known_occlusion_is_invisible_with_two_views() -> None:
 
     counts = visibility_counts(**case)
     assert counts.dtype == torch.int64 and torch.equal(counts, seen_a.long() + seen_b.long())
-    mask = visibility_mask(**case)
+    mask = counts >= MIN_VIEWS
     assert mask.dtype == torch.bool and mask.shape == (SIZE, SIZE)
     assert not mask[hidden_from_a] and mask[on_occluder] and mask[open_background]
-    assert visibility_mask(**case, min_views=1)[hidden_from_a]
+    assert counts[hidden_from_a] == 1
     # Every pixel of the strip hidden from A (background x in [-0.25, 1.25) at z = -10, rows of the occluder's
     # shadow) is invisible: columns 19 .. 24 of the centre row.
     assert not mask[int(CENTRE), 19:25].any() and mask[int(CENTRE), 18] and mask[int(CENTRE), 25]
@@ -127,9 +127,9 @@ def test_depth_tolerance_is_relative_to_the_train_views_max_depth() -> None:
     case = _occlusion_case()
     # Test depths off by 0.49 (< 0.05 * 10) still match; off by 0.51 do not.
     near_miss = {**case, "test_depth": case["test_depth"] + 0.49}
-    assert visibility_mask(**near_miss)[_test_pixel_of(-2.0, BACKGROUND_Z)]
+    assert visibility_counts(**near_miss)[_test_pixel_of(-2.0, BACKGROUND_Z)] == 2
     too_far = {**case, "test_depth": case["test_depth"] + 0.51}
-    assert not visibility_mask(**too_far).any()
+    assert not (visibility_counts(**too_far) >= MIN_VIEWS).any()
     assert RELATIVE_TOLERANCE == 0.05
 
 
@@ -237,9 +237,9 @@ def test_split_views_match_the_exact_criterion_up_to_one_pixel_at_its_edges() ->
             assert not (seen & ~truth & ~_band(truth)).any(), f"frame {test} from {train}: seen far from the truth"
             counts += truth
             bands |= _band(truth)
-        mask = visibility_mask(torch.from_numpy(test_depth), k, torch.from_numpy(scene.c2w[test]),
-                               torch.from_numpy(np.stack(train_depths)), torch.stack([k, k]),
-                               torch.from_numpy(scene.c2w[[6, 13]])).numpy()
+        mask = visibility_counts(torch.from_numpy(test_depth), k, torch.from_numpy(scene.c2w[test]),
+                                 torch.from_numpy(np.stack(train_depths)), torch.stack([k, k]),
+                                 torch.from_numpy(scene.c2w[[6, 13]])).numpy() >= MIN_VIEWS
         truth_mask = counts >= 2
         assert not (truth_mask & ~mask).any()
         assert not (mask & ~truth_mask & ~bands).any()

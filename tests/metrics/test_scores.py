@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -256,6 +257,17 @@ def test_evaluate_frame() -> None:
     assert set(full.as_dict()) == {"psnr", "ssim", "lpips", "depth_mae", "depth_srocc"}
 
 
+def assert_perfect_scores(scores: Mapping[str, float | None]) -> None:
+    """The documented scores of a prediction equal to the ground truth, full-frame and masked (also used by the
+    evaluator's tests)."""
+    for prefix in ("", "masked_"):
+        assert scores[f"{prefix}psnr"] == PSNR_CAP
+        assert scores[f"{prefix}ssim"] == pytest.approx(1.0, abs=1e-12)
+        assert scores[f"{prefix}lpips"] == 0.0
+        assert scores[f"{prefix}depth_mae"] == 0.0
+        assert scores[f"{prefix}depth_srocc"] == pytest.approx(1.0, abs=1e-12)
+
+
 def test_frame_scores_of_a_perfect_prediction() -> None:
     """Prediction = ground truth, with the real LPIPS network: the documented perfect scores, full and masked."""
     net = LPIPS.from_weights(lpips_weights())
@@ -265,12 +277,7 @@ def test_frame_scores_of_a_perfect_prediction() -> None:
     mask = torch.rand(40, 48) > 0.3
     scores = frame_scores(gt.clone(), gt, depth.clone(), depth, net, mask)
     assert list(scores) == [*METRIC_NAMES, *MASKED_METRIC_NAMES]
-    for prefix in ("", "masked_"):
-        assert scores[f"{prefix}psnr"] == PSNR_CAP
-        assert scores[f"{prefix}ssim"] == pytest.approx(1.0, abs=1e-12)
-        assert scores[f"{prefix}lpips"] == 0.0
-        assert scores[f"{prefix}depth_mae"] == 0.0
-        assert scores[f"{prefix}depth_srocc"] == pytest.approx(1.0, abs=1e-12)
+    assert_perfect_scores(scores)
 
 
 def test_frame_scores_masked_equal_evaluate_frame_and_null_when_not_computable() -> None:

@@ -194,7 +194,7 @@ def test_paper_rows_beside_the_measured_ones(runs, capsys):
     assert lines[9] == "| SimpleNeRF | 0.3750 | 0.6250 | 20.50 | 0.1875 | 0.7500 | 22.50 | - | - | - |"
     assert err.splitlines()[0] == ("note: 2 views: the (paper) rows are means over 8 scenes (fern, flower, fortress, "
                                    "horns, leaves, orchids, room, trex), the measured rows over fern, horns")
-    # Full-frame: only the SimpleNeRF numbers SPEC section 8 quotes; rows without any shown value are left out.
+    # Full-frame: only the SimpleNeRF numbers in paper_scores.FULL_FRAME; rows without any shown value are left out.
     main(["--paper", "llff", "--scores", "full", "--depth"])
     lines = table_lines(capsys.readouterr().out)
     assert lines[3:] == ["| SimpleNeRF (paper) | 0.390 | 0.553 | 17.57 | 0.278 | 0.753 |"]
@@ -351,7 +351,7 @@ def test_the_release_frame_scores_average_to_its_published_table_values(folder):
 
 def test_the_release_row_is_the_papers_row(capsys):
     """The tool on the authors' 2/3/4-view LLFF folders prints the paper's Table 1 SimpleNeRF row and its depth
-    table's LLFF row, digit for digit; the full-frame 2-view row gives the numbers SPEC section 8 quotes."""
+    table's LLFF row, digit for digit; the full-frame 2-view row gives paper_scores.FULL_FRAME's numbers."""
     folders = [str(require_shared(f"reference_scores/{f}")) for f in ("test1011", "test1021", "test1031")]
     main([*folders, "--paper", "llff", "--depth"])
     out, err = capsys.readouterr()
@@ -366,7 +366,7 @@ def test_the_release_row_is_the_papers_row(capsys):
     main([folders[0], "--scores", "full", "--depth"])
     assert table_lines(capsys.readouterr().out)[3] == ("| SimpleNeRF (release) | 0.3899 | 0.5529 | 17.57 | 0.2777 | "
                                                        "0.7531 |")
-    # Per scene: the frame means of each scene; fern's full-frame PSNR is the 17.01 SPEC section 8 quotes.
+    # Per scene: the frame means of each scene; fern's full-frame PSNR is PER_SCENE's 17.01.
     main([folders[0], "--scores", "full", "--per-scene"])
     out = capsys.readouterr().out
     fern = out.split("### fern")[1].split("###")[0]

@@ -22,7 +22,13 @@ from simplenerf.evaluation.metrics import psnr
 from simplenerf.geometry.rays import pixel_grid
 from simplenerf.geometry.views import Views
 from simplenerf.method.augmentations import Augmentation
-from simplenerf.method.losses import coarse_fine_sparse_loss, color_loss, psnr_of_mse, sparse_depth_loss
+from simplenerf.method.losses import (
+    coarse_fine_sparse_loss,
+    color_loss,
+    mass_concentration_loss,
+    psnr_of_mse,
+    sparse_depth_loss,
+)
 from simplenerf.method.reliability import ReliabilityMask, mask_fractions, masked_depth_loss
 from simplenerf.model.nerf import NeRF, NeRFOutputs
 from simplenerf.model.rendering import RenderOutputs
@@ -135,6 +141,8 @@ class SimpleNeRF(L.LightningModule):
         # lambda_1 .. lambda_5 by loss name; `callbacks.LossWeightSchedule` changes them per step (the warm-up).
         self.loss_weights = {"color": color_weight, "sparse_depth": sparse_depth_weight, "cfc": coarse_fine_weight}
         self.loss_weights.update({aug.name: aug.depth_weight for aug in self.augmentations})
+        self.loss_weights.update({aug.concentration_name: aug.concentration_weight for aug in self.augmentations
+                                  if aug.concentration_weight is not None})  # Simple-RF's, on the random rays
         self.train_views: Views | None = None  # what the reliability masks look at, on the module's device
 
     @property
@@ -216,6 +224,10 @@ class SimpleNeRF(L.LightningModule):
         +1 / -1 / 0 rays, by "<loss name>/<plus|minus|zero>"."""
         augmented = list(renders.augmented.values())
         losses = {"color": color_loss([renders.main.coarse, renders.main.fine, *augmented], rays.rgb)}
+        for aug in self.augmentations:  # Simple-RF's mass concentration (free while its weight is 0)
+            if self.loss_weights.get(aug.concentration_name, 0.0) > 0:
+                weights = renders.augmented[aug.name].weights
+                losses[aug.concentration_name] = mass_concentration_loss(weights, aug.concentration_bins)
         masks = {}
         for pair in self.depth_pairs(renders):
             if self.loss_weights[pair.name] > 0:

@@ -8,6 +8,10 @@ from its own `ReliabilityMask`. The simplifications themselves are configuration
 - views augmentation: `RadianceField(view_dependent=False)`;
 - ablations: identical augmentation `RadianceField()`, smaller network `RadianceField(num_layers=4, skip_layer=None)`.
 
+On grids (Simple-RF, arXiv 2404.19015, and its release) the authors changed the augmentation: a lower-capacity
+density (`KPlanesField(density_features=...)`), a field empty near the camera (`min_ndc_z`) and a mass-concentration
+loss on its ray weights (`concentration_weight`, `losses.mass_concentration_loss`).
+
 A new augmentation plugs in from YAML by `class_path`: any `Field` (an MLP, a grid, a user's own), or a subclass of
 `Augmentation` that overrides `render`.
 """
@@ -34,6 +38,9 @@ class Augmentation(nn.Module):
         mask: ReliabilityMask,
         depth_weight: float = 0.1,
         stage: Literal["coarse", "fine"] = "coarse",
+        min_ndc_z: float | None = None,
+        concentration_weight: float | None = None,
+        concentration_bins: int = 5,
     ) -> None:
         """
         Args:
@@ -43,14 +50,27 @@ class Augmentation(nn.Module):
             depth_weight: lambda_3 / lambda_4, weight of the masked depth loss (a warm-up schedule may override it).
             stage: evaluated at the main model's coarse samples and tied to the coarse depth (the paper), or at the
                 fine samples and tied to the fine depth (the "w/o coarse-fine consistency" ablation adds those).
+            min_ndc_z: the augmentation is empty in front of this NDC z (`rendering.cut_near`; Simple-TensoRF:
+                -0.5); None: no cut.
+            concentration_weight: weight of the mass-concentration loss on this augmentation's ray weights, the loss
+                `<name>_concentration` of the module (a schedule may change it; Simple-TensoRF: 0.01 from 20% of the
+                steps); None: no such loss.
+            concentration_bins: groups of samples the loss sums the weights in (Simple-RF: 5).
         """
         super().__init__()
         self.name, self.field, self.mask, self.depth_weight, self.stage = name, field, mask, depth_weight, stage
+        self.min_ndc_z, self.concentration_weight, self.concentration_bins = (min_ndc_z, concentration_weight,
+                                                                             concentration_bins)
+
+    @property
+    def concentration_name(self) -> str:
+        """The loss name of its mass-concentration loss in the module's `loss_weights`."""
+        return f"{self.name}_concentration"
 
     def render(self, nerf: NeRF, main: NeRFOutputs, randomized: bool) -> RenderOutputs:
         """Renders the augmentation along the rays of `main`, at the main model's samples of its stage."""
         samples = main.coarse_samples if self.stage == "coarse" else main.fine_samples
-        return nerf.render(self.field, samples, randomized)
+        return nerf.render(self.field, samples, randomized, min_ndc_z=self.min_ndc_z)
 
     def main_output(self, main: NeRFOutputs) -> RenderOutputs:
         """The main model's render this augmentation is tied to."""

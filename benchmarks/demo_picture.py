@@ -1,6 +1,6 @@
 """The README's picture from the demo's two tested runs (`make demo`): one held-out frame of the synthetic scene as
 [photo | SimpleNeRF's render | SimpleNeRF's depth | DS-NeRF's depth | exact depth], the depths in one colour range
-(that of the exact depth), each panel enlarged `--zoom` times, e.g.
+(that of the exact depth; near = warm), each panel enlarged `--zoom` times, e.g.
 
     python -m benchmarks.demo_picture runs/grid_demo runs/grid_demo_dsnerf --out docs/images/demo.png
 """
@@ -18,11 +18,11 @@ from simplenerf.viz.pictures import colorize_depth, to_uint8, write_png
 
 
 def panel(picture: np.ndarray, label: str, zoom: int) -> np.ndarray:
-    """An RGB uint8 panel [H, W, 3] enlarged `zoom` times (nearest: the pixels stay visible), labelled at the top."""
+    """An RGB uint8 panel [H, W, 3] enlarged `zoom` times (nearest: the pixels stay visible) under a label bar."""
     big = cv2.resize(picture, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST)
-    cv2.putText(big, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
-    cv2.putText(big, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
-    return big
+    bar = np.full((22, big.shape[1], 3), 255, np.uint8)
+    cv2.putText(bar, label, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.concatenate([bar, big], axis=0)
 
 
 def main() -> None:

@@ -14,7 +14,9 @@
 # RealEstate-10K clip (<id>.txt + frames/). STEPS shortens the budget: the learning rate still decays to a tenth by the
 # last step and the warm-up stays 10% of it. Runs: $RUNS/<scene>_seed<S>_<variant> (RUNS default runs/grid).
 # PYTHON (default .venv/bin/python), EXTRA (more CLI overrides for every fit) and, with STEPS, DEPTH_WEIGHT (the
-# weight of L_ap, L_av and L_cfc after the warm-up; default 0.1, the paper's) can be set.
+# weight of L_ap, L_av and L_cfc after the warm-up; default 0.1, the paper's) can be set. A variant is a config of
+# configs/grid/ (simplenerf, dsnerf, simplerf: Simple-RF's augmentation); with STEPS, a config's mass-concentration
+# losses (<name>_concentration) get CONCENTRATION_WEIGHT (default 0.01) from 20% of the steps.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-.venv/bin/python}
@@ -25,7 +27,7 @@ SHARED=${SHARED:-../shared/data}
 export WANDB_MODE=${WANDB_MODE:-offline}
 LPIPS_NPZ=$SHARED/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz
 [ -f "$LPIPS_NPZ" ] && export SIMPLENERF_LPIPS_WEIGHTS=${SIMPLENERF_LPIPS_WEIGHTS:-$(realpath "$LPIPS_NPZ")}
-[ $# -gt 0 ] || { sed -n '2,15p' "$0"; exit 2; }
+[ $# -gt 0 ] || { sed -n '2,17p' "$0"; exit 2; }
 
 scene_dir() {  # scene name or path -> folder
   case $1 in
@@ -37,7 +39,7 @@ scene_dir() {  # scene name or path -> folder
 
 budget=()
 if [ -n "${STEPS:-}" ]; then
-  warm=$(( STEPS / 10 ))
+  warm=$(( STEPS / 10 )) late=$(( STEPS / 5 ))
   budget=(--trainer.max_steps "$STEPS" --model.lr_scheduler.init_args.decay_steps "$STEPS"
           --trainer.val_check_interval "$STEPS" --checkpoint.every_n_train_steps "$STEPS")
   w=${DEPTH_WEIGHT:-0.1}
@@ -57,8 +59,12 @@ for scene in "$@"; do
       [ -n "${TABLE_ONLY:-}" ] && continue
       config=configs/grid/$prefix$variant.yaml
       args=(--data.init_args.scene_dir "$dir" --seed_everything "$seed" --data.init_args.seed "$seed" "${budget[@]}")
-      if [ -n "${STEPS:-}" ] && [ "$variant" = simplenerf ]; then
-        args+=(--trainer.callbacks.init_args.schedules "$sched")
+      if [ -n "${STEPS:-}" ] && [ "${variant%dsnerf}" = "$variant" ]; then  # a variant with the warm-up
+        schedules=$sched
+        for loss in $(grep -o '^ *[a-z_]*_concentration:' "$config" | tr -d ' :' | sort -u); do
+          schedules="${schedules%\}}, $loss: [[0, 0.0], [$late, ${CONCENTRATION_WEIGHT:-0.01}]]}"
+        done
+        args+=(--trainer.callbacks.init_args.schedules "$schedules")
       fi
       # shellcheck disable=SC2206
       args+=(${EXTRA:-})

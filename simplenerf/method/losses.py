@@ -39,3 +39,34 @@ def psnr_of_mse(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """PSNR of float colours in [0, 1], -10 log10(MSE): a training / validation progress signal, not the 8-bit
     evaluation metric (`simplenerf.metrics.scores.psnr`)."""
     return -10.0 * torch.log10(torch.mean((rgb - target.to(rgb)) ** 2))
+
+
+def bin_sizes(num_samples: int, num_bins: int) -> list[int]:
+    """Sizes of `num_bins` consecutive groups of `num_samples` samples: num_samples // num_bins each, one more for
+    the num_samples % num_bins bins at evenly spaced indices (linspace(0, num_bins - 1, remainder), truncated), as
+    the release groups them (Simple-RF, src/loss_functions/MassConcentrationLoss06.py). 32 in 5: [7, 6, 6, 6, 7]."""
+    if not 0 < num_bins <= num_samples:
+        raise ValueError(f"need 1 to {num_samples} bins for {num_samples} samples, got {num_bins}")
+    base, remainder = divmod(num_samples, num_bins)
+    bigger = set(torch.linspace(0, num_bins - 1, remainder).long().tolist()) if remainder else set()
+    return [base + (i in bigger) for i in range(num_bins)]
+
+
+def mass_concentration_loss(weights: torch.Tensor, num_bins: int = 5, eps: float = 1e-3) -> torch.Tensor:
+    """Simple-RF's mass-concentration loss on an augmentation's rays (arXiv 2404.19015; release:
+    src/loss_functions/MassConcentrationLoss06.py, weight 0.01 from step 5k of 25k in
+    runs/training/train1546/Configs.json): the ray weights summed in `num_bins` consecutive groups of samples
+    (`bin_sizes`), then the entropy sum_b -(W_b + eps) log(W_b + eps), mean over rays. Low when the mass is in
+    one bin (an opaque surface); high when spread along the ray (a translucent fog whose depth could win a reliability
+    mask wrongly). Not normalised by the accumulation, as the release.
+
+    Args:
+        weights: [R, S] rendering weights along R rays (the augmentation's, at the main model's coarse samples).
+
+    Returns:
+        a scalar.
+    """
+    assert weights.dim() == 2, f"weights must be [R, S], got {tuple(weights.shape)}"
+    binned = torch.stack([w.sum(-1) for w in torch.split(weights, bin_sizes(weights.shape[1], num_bins), dim=-1)],
+                         dim=-1)  # [R, num_bins]
+    return torch.special.entr(binned + eps).sum(-1).mean()

@@ -19,7 +19,7 @@ from typing import Literal
 import torch
 
 from simplenerf.data.batches import RayBatch, SparseDepthBatch
-from simplenerf.method.losses import coarse_fine_sparse_loss, color_loss, sparse_depth_loss
+from simplenerf.method.losses import coarse_fine_sparse_loss, color_loss, mass_concentration_loss, sparse_depth_loss
 from simplenerf.method.reliability import (
     Direction,
     ReliabilityMask,
@@ -164,6 +164,18 @@ class MaskedDepthTerm(Term):
         return TermValue(masked_depth_loss(z_main, z_other, mask, self.supervision), fractions)
 
 
+class ConcentrationTerm(Term):
+    """Simple-RF's mass concentration on an augmentation's ray weights (`losses.mass_concentration_loss`; Simple-RF,
+    arXiv 2404.19015), on the random rays: against a translucent augmented depth winning a reliability mask."""
+
+    def __init__(self, augmentation: str, weight: float, bins: int) -> None:
+        super().__init__(f"{augmentation}_concentration", weight, ("random",))
+        self.augmentation, self.bins = augmentation, bins
+
+    def value(self, rendered: RenderedRays) -> TermValue:
+        return TermValue(mass_concentration_loss(rendered.renders[self.augmentation].weights, self.bins))
+
+
 class RegularizerTerm(Term):
     """A field's own regulariser (`Field.regularizers`, e.g. a grid's total variation), once per step."""
 
@@ -177,7 +189,8 @@ class RegularizerTerm(Term):
 
 def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[str, Field]) -> dict[str, Term]:
     """The terms by name, in the order they are summed: colour, sparse depth, one masked depth term per augmentation
-    (named after it), L_cfc ("cfc"), then each field's regularisers ("<regulariser>_<field>", e.g. "tv_fine").
+    (named after it), Simple-RF's mass concentration of those that have one ("<name>_concentration"), L_cfc ("cfc"),
+    then each field's regularisers ("<regulariser>_<field>", e.g. "tv_fine").
 
     Args:
         augmentations: `method.augmentations.Augmentation`s. fields: the fields by name ("coarse", "fine" and the
@@ -187,6 +200,8 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
     depth = {"supervision": objective.supervision, "depth_loss_space": objective.depth_loss_space}
     for aug in augmentations:
         terms.append(MaskedDepthTerm(aug.name, aug.depth_weight, aug.mask, aug.stage, aug.name, **depth))
+    terms += [ConcentrationTerm(aug.name, aug.concentration_weight, aug.concentration_bins) for aug in augmentations
+              if aug.concentration_weight is not None]
     if objective.coarse_fine_mask is not None:
         terms.append(MaskedDepthTerm("cfc", objective.coarse_fine_weight, objective.coarse_fine_mask, "coarse", "fine",
                                      on_sparse_rays=objective.coarse_fine_on_sparse_rays, **depth))

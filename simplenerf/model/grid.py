@@ -84,6 +84,7 @@ class KPlanesField(Field):
         depth_resolutions: list[int] | None = None,
         features: int = 16,
         density_scales: int | None = None,
+        density_features: int | None = None,
         residual_scales_to_color: bool = False,
         view_dependent: bool = True,
         view_bands: int = 4,
@@ -102,8 +103,13 @@ class KPlanesField(Field):
             features: C, feature channels of every plane.
             density_scales: the density MLP sees the features of the first (coarsest) `density_scales` scales only;
                 None: all (the main field). The grid's analogue of `RadianceField(density_bands=...)`.
-            residual_scales_to_color: feed the features of the other (finer) scales to the colour MLP, as
-                `RadianceField(residual_bands_to_color=True)` does with the high encoding bands.
+            density_features: of each of those scales, the density MLP sees the first `density_features` channels
+                only (None: all `features`): a lower-rank density, as Simple-TensoRF's points augmentation has 4
+                density components per plane where its main model has 16, with the same colour components
+                (Simple-RF release, runs/training/train1546/Configs.json, `num_components_density`).
+            residual_scales_to_color: feed what the density MLP does not see (the other, finer scales; the channels
+                beyond `density_features`) to the colour MLP, as `RadianceField(residual_bands_to_color=True)` does
+                with the high encoding bands.
             view_dependent: colour depends on the view direction (False: the views augmentation).
             view_bands: bands of the direction encoding gamma(v, 0, L_v) fed to the colour MLP (shared with the other
                 fields through the samples' cache).
@@ -126,10 +132,16 @@ class KPlanesField(Field):
         density_scales = len(resolutions) if density_scales is None else density_scales
         if not 0 < density_scales <= len(resolutions):
             raise ValueError(f"density_scales must be in [1, {len(resolutions)}], got {density_scales}")
-        if density_scales < len(resolutions) and not residual_scales_to_color:
-            raise ValueError("scales beyond density_scales would be unused; set residual_scales_to_color or drop them")
+        density_features = features if density_features is None else density_features
+        if not 0 < density_features <= features:
+            raise ValueError(f"density_features must be in [1, {features}], got {density_features}")
+        unseen = features * len(resolutions) - density_features * density_scales  # channels the density MLP skips
+        if unseen and not residual_scales_to_color:
+            raise ValueError("features beyond density_scales / density_features would be unused; set "
+                             "residual_scales_to_color or drop them")
         self.resolutions, self.depth_resolutions = resolutions, depth_resolutions
         self.density_scales, self.residual_scales_to_color = density_scales, residual_scales_to_color
+        self.density_features = density_features
         self.features, self.view_dependent, self.view_bands = features, view_dependent, view_bands
         self.tv_weight, self.depth_tv_scale, self.density_shift = tv_weight, depth_tv_scale, density_shift
         self.planes = nn.ParameterList()
@@ -139,10 +151,9 @@ class KPlanesField(Field):
                 plane = torch.empty(1, features, nodes[height_axis], nodes[width_axis]).uniform_(*init_range)
                 self.planes.append(nn.Parameter(plane))
         self.density_net = nn.Sequential(
-            nn.Linear(features * density_scales, hidden), nn.ReLU(), nn.Linear(hidden, 1 + geometry_features)
+            nn.Linear(density_features * density_scales, hidden), nn.ReLU(), nn.Linear(hidden, 1 + geometry_features)
         )
-        residual = features * (len(resolutions) - density_scales) if residual_scales_to_color else 0
-        color_in = geometry_features + residual + (encoded_dim(3, view_bands) if view_dependent else 0)
+        color_in = geometry_features + unseen + (encoded_dim(3, view_bands) if view_dependent else 0)
         self.color_net = nn.Sequential(nn.Linear(color_in, hidden), nn.ReLU(), nn.Linear(hidden, 3))
 
     def grid_features(self, positions: torch.Tensor) -> torch.Tensor:
@@ -164,18 +175,31 @@ class KPlanesField(Field):
             per_scale.append(feature)
         return torch.cat(per_scale, dim=0).t()
 
+    def split_features(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """[P, C scales] grid features -> (what the density MLP sees [P, density_features density_scales], the rest
+        [P, C scales - that], scale-major in both)."""
+        points, scales = features.shape[0], len(self.resolutions)
+        if self.density_features == self.features:  # whole scales: a leading slice
+            split = self.features * self.density_scales
+            return features[:, :split], features[:, split:]
+        per_scale = features.reshape(points, scales, self.features)
+        seen = per_scale[:, : self.density_scales, : self.density_features].reshape(points, -1)
+        rest = [per_scale[:, : self.density_scales, self.density_features :].reshape(points, -1),
+                per_scale[:, self.density_scales :].reshape(points, -1)]
+        return seen, torch.cat(rest, dim=-1)
+
     def forward(self, samples: Samples) -> FieldOutputs:
         """Density and colour at the samples' NDC positions (and view directions if `view_dependent`)."""
         rays, num = samples.positions.shape[:2]
         features = self.grid_features(samples.positions.reshape(-1, 3))  # [R S, C scales]
-        split = self.features * self.density_scales
-        h = self.density_net(features[:, :split])  # [R S, 1 + G]
+        seen, rest = self.split_features(features)
+        h = self.density_net(seen)  # [R S, 1 + G]
         raw_density = trunc_exp(h[:, 0] + self.density_shift).view(rays, num)
         if not samples.color:  # density only (no loss reads the colour at these samples)
             return FieldOutputs(raw_density=raw_density, rgb=None)
         color_in = [h[:, 1:]]
         if self.residual_scales_to_color:
-            color_in.append(features[:, split:])
+            color_in.append(rest)
         if self.view_dependent:
             dirs = samples.encoded_directions(self.view_bands)  # [R, D]
             color_in.append(dirs[:, None, :].expand(rays, num, dirs.shape[-1]).reshape(rays * num, -1).to(h.dtype))
@@ -200,4 +224,5 @@ class KPlanesField(Field):
 
     def extra_repr(self) -> str:
         return (f"resolutions={self.resolutions}, depth_resolutions={self.depth_resolutions}, "
-                f"features={self.features}, view_dependent={self.view_dependent}")
+                f"features={self.features}, density_features={self.density_features}, "
+                f"view_dependent={self.view_dependent}")

@@ -15,7 +15,7 @@ from torch import nn
 
 from simplenerf.geometry.rays import RayBundle, ndc_to_metric_t
 from simplenerf.model.fields import Field, FieldOutputs, RadianceField
-from simplenerf.model.rendering import RenderOutputs, composite, compute_weights, deltas, density
+from simplenerf.model.rendering import RenderOutputs, composite, compute_weights, cut_near, deltas, density
 from simplenerf.model.samplers import hierarchical_samples, stratified_samples
 from simplenerf.model.samples import Samples
 
@@ -96,13 +96,17 @@ class NeRF(nn.Module):
             color=color,
         )
 
-    def render(self, field: Field, samples: Samples, randomized: bool) -> RenderOutputs:
-        """Evaluates `field` at `samples` and volume-renders it (density noise only when `randomized`)."""
+    def render(self, field: Field, samples: Samples, randomized: bool, min_ndc_z: float | None = None
+               ) -> RenderOutputs:
+        """Evaluates `field` at `samples` and volume-renders it (density noise only when `randomized`); with
+        `min_ndc_z`, the field is empty in front of that NDC z (`rendering.cut_near`)."""
         out = self.evaluate(field, samples)
         # Rendering runs in the precision of the rays, whatever the MLP ran in (e.g. under bf16 autocast).
         raw = out.raw_density.to(samples.t.dtype)
         rgb = out.rgb.to(samples.t.dtype) if samples.color else None
         sigma = density(raw, self.density_noise_std if randomized else 0.0)
+        if min_ndc_z is not None:  # after the noise, so that the cut-off samples stay empty
+            sigma = cut_near(sigma, samples.positions[..., 2], min_ndc_z)
         return composite(compute_weights(sigma, samples.delta), rgb, samples.t_metric)
 
     def evaluate(self, field: Field, samples: Samples) -> FieldOutputs:

@@ -49,6 +49,24 @@ def density(raw: torch.Tensor, noise_std: float, generator: torch.Generator | No
     return torch.relu(raw)
 
 
+def cut_near(sigma: torch.Tensor, ndc_z: torch.Tensor, min_ndc_z: float) -> torch.Tensor:
+    """Density with every sample in front of NDC z = `min_ndc_z` emptied: a field confined to the box z >=
+    min_ndc_z. Simple-TensoRF's points augmentation has its box from NDC z -0.5 (the main model's from -1), which
+    "removes most of the floaters close to the camera" (Simple-RF, arXiv 2404.19015; release:
+    runs/training/train1546/Configs.json, `bounding_box`; points outside a TensoRF box have density 0,
+    src/models/SimpleTensoRF09.py). With LLFF's scaling (near plane = 0.75 x the nearest bound), NDC z -0.5 is
+    depth 4/3 near, the nearest SfM bound.
+
+    Args:
+        sigma: [R, S] density. ndc_z: [R, S] NDC z of the samples (in [-1, 1); -1 is the near plane).
+
+    Returns:
+        [R, S]: sigma where ndc_z >= min_ndc_z, else 0 (no gradient reaches the field there).
+    """
+    assert sigma.shape == ndc_z.shape, f"sigma {tuple(sigma.shape)} vs ndc_z {tuple(ndc_z.shape)}"
+    return torch.where(ndc_z >= min_ndc_z, sigma, torch.zeros_like(sigma))
+
+
 def compute_weights(sigma: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
     """w_i = alpha_i prod_{j<i} (1 - alpha_j + 1e-10).
 

@@ -86,6 +86,39 @@ def test_points_augmentation_is_the_same_field_with_its_coarsest_scales_only():
     torch.testing.assert_close(simple.grid_features(points), main.grid_features(points)[:, :4])
 
 
+def test_fewer_density_features_give_a_lower_rank_density_and_pass_the_rest_to_the_colour():
+    # Simple-TensoRF's points augmentation: 4 density components instead of 16, the colour's unchanged.
+    full = KPlanesField(resolutions=[16], depth_resolutions=[8], features=8, hidden=32, geometry_features=15)
+    low = KPlanesField(resolutions=[16], depth_resolutions=[8], features=8, density_features=2,
+                       residual_scales_to_color=True, hidden=32, geometry_features=15)
+    assert [tuple(p.shape) for p in low.planes] == [tuple(p.shape) for p in full.planes]  # the same planes
+    assert (full.density_net[0].in_features, low.density_net[0].in_features) == (8, 2)
+    assert (full.color_net[0].in_features, low.color_net[0].in_features) == (15 + 27, 15 + 6 + 27)
+    count = lambda m: sum(p.numel() for p in m.parameters())  # noqa: E731
+    assert count(full.density_net) - count(low.density_net) == 6 * 32  # 6 fewer inputs to the 32 hidden units
+    # Two scales, 3 of 4 channels of the coarser one to the density: the rest is that scale's channel 3, then the
+    # finer scale (scale-major).
+    two = KPlanesField(resolutions=[4, 8], features=4, density_scales=1, density_features=3,
+                       residual_scales_to_color=True)
+    features = torch.arange(8.0).expand(2, 8)  # [P, C scales]
+    seen, rest = two.split_features(features)
+    assert seen[0].tolist() == [0.0, 1.0, 2.0] and rest[0].tolist() == [3.0, 4.0, 5.0, 6.0, 7.0]
+    assert two.color_net[0].in_features == 15 + 5 + 27
+    # Changing the channels beyond density_features changes the colour only.
+    torch.manual_seed(0)
+    samples = samples_at(torch.rand(3, 4, 3) * 2 - 1)
+    before = low(samples)
+    with torch.no_grad():
+        for plane in low.planes:
+            plane[:, 2:] += 0.3
+    after = low(samples)
+    assert torch.equal(before.raw_density, after.raw_density) and not torch.allclose(before.rgb, after.rgb)
+    with pytest.raises(ValueError, match="would be unused"):
+        KPlanesField(resolutions=[8], features=8, density_features=4)
+    with pytest.raises(ValueError, match="density_features must be in"):
+        KPlanesField(resolutions=[8], features=8, density_features=9, residual_scales_to_color=True)
+
+
 def test_view_independent_field_ignores_directions_and_the_main_one_does_not():
     torch.manual_seed(0)
     positions = torch.rand(3, 4, 3) * 2 - 1
@@ -197,10 +230,11 @@ def test_grid_demo_dsnerf_fits(grid_demo):
     assert last["global_step"] == 2 and not any(k.startswith("augmentations.") for k in last["state_dict"])
 
 
-def test_llff_grid_config_fits_on_an_llff_scene(synthetic_scene, tmp_path):
-    """The LLFF grid config on the generated LLFF-layout scene (factor 1, 48x64, 2 views; SfM needs more pixels).
-    Its DS-NeRF twin is the same config without the simplifiers (checked below)."""
-    run("fit", "--config", str(GRID / "simplenerf.yaml"), "--config", str(REPO / "configs/overrides/views/2.yaml"),
+@pytest.mark.parametrize("config", ["simplenerf", "simplerf"])
+def test_llff_grid_config_fits_on_an_llff_scene(synthetic_scene, tmp_path, config):
+    """The LLFF grid configs on the generated LLFF-layout scene (factor 1, 48x64, 2 views; SfM needs more pixels).
+    Their DS-NeRF twin is the same config without the simplifiers (checked below)."""
+    run("fit", "--config", str(GRID / f"{config}.yaml"), "--config", str(REPO / "configs/overrides/views/2.yaml"),
         *FEW_STEPS, "--data.init_args.scene_dir", str(synthetic_scene), "--data.init_args.factor", "1",
         "--data.init_args.sparse_rays_per_batch", "0", *run_dirs(tmp_path, "run"))
     last = torch.load(tmp_path / "run" / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
@@ -219,6 +253,7 @@ def test_realestate_grid_config_fits_on_a_clip(tmp_path):
 
 
 @pytest.mark.parametrize(("simple", "baseline"), [("demo", "demo_dsnerf"), ("simplenerf", "dsnerf"),
+                                                  ("simplerf", "dsnerf"),
                                                   ("realestate_simplenerf", "realestate_dsnerf")])
 def test_grid_dsnerf_configs_are_the_simplenerf_ones_without_the_simplifiers(simple, baseline):
     a = yaml.safe_load((GRID / f"{simple}.yaml").read_text())

@@ -1,3 +1,5 @@
+import math
+
 import torch
 
 from simplenerf.geometry.rays import RayBundle, make_rays
@@ -68,3 +70,29 @@ def test_field_chunks_give_the_same_renders_and_share_one_encoding():
     piece = b.coarse_samples[0:5]
     assert piece.encoded_positions(10).data_ptr() == b.coarse_samples.encoded_positions(10).data_ptr()
     assert torch.equal(piece.encoded_positions(10), b.coarse_samples.encoded_positions(10)[0:5])
+
+
+class ConstantField(torch.nn.Module):
+    """Density ln 2 everywhere (alpha 1/2 per unit interval), grey colour."""
+
+    def forward(self, samples):
+        from simplenerf.model.fields import FieldOutputs
+
+        r, s = samples.t.shape
+        return FieldOutputs(torch.full((r, s), math.log(2.0)), torch.full((r, s, 3), 0.5))
+
+
+def test_render_with_a_near_cut_is_empty_in_front_of_it():
+    from simplenerf.model.samples import Samples
+
+    nerf = small_nerf()
+    t = torch.tensor([[0.0, 0.125, 0.25, 0.5]])  # NDC z = -1 + 2 t: -1, -0.75, -0.5, 0
+    positions = torch.stack([torch.zeros_like(t), torch.zeros_like(t), -1.0 + 2.0 * t], dim=-1)
+    t_metric = torch.tensor([[1.0, 1.2, 1.5, 2.0]])
+    samples = Samples(t=t, t_metric=t_metric, delta=torch.ones_like(t), positions=positions,
+                      directions=torch.tensor([[0.0, 0.0, -1.0]]))
+    whole = nerf.render(ConstantField(), samples, randomized=False)
+    cut = nerf.render(ConstantField(), samples, randomized=False, min_ndc_z=-0.5)
+    torch.testing.assert_close(whole.weights, torch.tensor([[0.5, 0.25, 0.125, 0.0625]]))
+    torch.testing.assert_close(cut.weights, torch.tensor([[0.0, 0.0, 0.5, 0.25]]))  # alphas 0, 0, 1/2, 1/2
+    torch.testing.assert_close(cut.depth, torch.tensor([(0.5 * 1.5 + 0.25 * 2.0) / (0.75 + 1e-6)]))

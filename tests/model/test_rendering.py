@@ -1,6 +1,6 @@
 import torch
 
-from simplenerf.model.rendering import composite, compute_weights, deltas, density
+from simplenerf.model.rendering import composite, compute_weights, cut_near, deltas, density
 
 
 def test_transmittance_and_weights_hand_computed():
@@ -34,3 +34,12 @@ def test_density_noise_only_when_asked():
     assert torch.equal(density(raw, 0.0), torch.tensor([[0.0, 0.5]]))
     torch.manual_seed(0)
     assert not torch.equal(density(raw.expand(1000, 2), 1.0)[:, 1], torch.full((1000,), 0.5))
+
+
+def test_cut_near_empties_exactly_the_samples_in_front_of_the_cut():
+    sigma = torch.tensor([[1.0, 2.0, 3.0, 4.0]], requires_grad=True)
+    ndc_z = torch.tensor([[-1.0, -0.6, -0.5, 0.2]])
+    cut = cut_near(sigma, ndc_z, -0.5)
+    assert torch.equal(cut, torch.tensor([[0.0, 0.0, 3.0, 4.0]]))  # z = -0.5 itself is kept
+    cut.sum().backward()
+    assert torch.equal(sigma.grad, torch.tensor([[0.0, 0.0, 1.0, 1.0]]))  # no gradient in front of the cut

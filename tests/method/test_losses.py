@@ -1,0 +1,86 @@
+"""Simple-RF's mass-concentration loss: its bins, its value on hand-computed rays, and its place in the module."""
+
+import math
+
+import pytest
+import torch
+
+from simplenerf.callbacks import LossWeightSchedule
+from simplenerf.data.batches import RayBatch
+from simplenerf.geometry.rays import make_rays
+from simplenerf.method.augmentations import Augmentation
+from simplenerf.method.losses import bin_sizes, mass_concentration_loss
+from simplenerf.method.reliability import PatchReprojectionMask
+from simplenerf.model.grid import KPlanesField
+from simplenerf.model.nerf import NeRF
+from simplenerf.module import SimpleNeRF
+
+
+def entr(x: float) -> float:
+    return -x * math.log(x)
+
+
+def test_bins_are_consecutive_groups_with_the_remainder_spread_as_the_release():
+    assert bin_sizes(32, 5) == [7, 6, 6, 6, 7]  # remainder 2 at linspace(0, 4, 2) = 0, 4
+    assert bin_sizes(64, 5) == [13, 13, 13, 12, 13]  # remainder 4 at 0, 1.33, 2.67, 4 -> 0, 1, 2, 4
+    assert bin_sizes(7, 3) == [3, 2, 2] and bin_sizes(10, 5) == [2, 2, 2, 2, 2]
+    with pytest.raises(ValueError, match="bins"):
+        bin_sizes(4, 5)
+
+
+def test_entropy_of_the_binned_weights_on_hand_computed_rays():
+    weights = torch.tensor([[0.1, 0.2, 0.1, 0.3, 0.1, 0.0, 0.0],  # bins of 3, 2, 2 samples: 0.4, 0.4, 0
+                            [0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]])  # all the mass in the last bin: 0, 0, 1
+    spread = 2 * entr(0.401) + entr(0.001)  # eps 1e-3 added to every bin
+    opaque = 2 * entr(0.001) + entr(1.001)
+    assert spread == pytest.approx(0.73977, abs=1e-5) and opaque == pytest.approx(0.012815, abs=1e-6)
+    loss = mass_concentration_loss(weights, num_bins=3)
+    assert loss.item() == pytest.approx((spread + opaque) / 2, rel=1e-5)
+    # Within one bin the distribution does not matter; across bins it does.
+    assert mass_concentration_loss(weights[1:].roll(1, -1), 3).item() == pytest.approx(opaque, rel=1e-5)
+    w = weights[:1].clone().requires_grad_(True)
+    mass_concentration_loss(w, 3).backward()  # d/dW -(W + eps) log(W + eps) = -(log(W + eps) + 1)
+    bins = [-(math.log(0.401) + 1)] * 5 + [-(math.log(0.001) + 1)] * 2
+    torch.testing.assert_close(w.grad[0], torch.tensor(bins))
+
+
+def small_grid(**kwargs) -> KPlanesField:
+    return KPlanesField(resolutions=[4], features=2, hidden=8, **kwargs)
+
+
+def grid_module(concentration_weight: float) -> SimpleNeRF:
+    torch.manual_seed(0)
+    augs = [Augmentation("points", small_grid(density_features=1, residual_scales_to_color=True),
+                         PatchReprojectionMask(), min_ndc_z=-0.5, concentration_weight=concentration_weight),
+            Augmentation("views", small_grid(view_dependent=False), PatchReprojectionMask())]
+    nerf = NeRF(small_grid(), small_grid(), num_coarse=10, num_fine=6, density_noise_std=0.0)
+    return SimpleNeRF(nerf, augmentations=augs, coarse_fine_mask=PatchReprojectionMask())
+
+
+def ray_batch(n: int = 12) -> RayBatch:
+    k = torch.tensor([[[40.0, 0.0, 16.0], [0.0, 40.0, 12.0], [0.0, 0.0, 1.0]]])
+    c2w = torch.cat([torch.eye(3), torch.zeros(3, 1)], dim=1)[None]
+    uv = torch.stack([torch.arange(n) % 32, torch.arange(n) // 32], dim=-1)
+    return RayBatch(make_rays(k, c2w, uv, 32, 24, near=1.0), torch.rand(n, 3), torch.zeros(n, dtype=torch.long), uv)
+
+
+def test_module_adds_the_concentration_loss_of_an_augmentation_by_name():
+    model = grid_module(concentration_weight=0.01)
+    assert model.loss_weights["points_concentration"] == 0.01 and "views_concentration" not in model.loss_weights
+    LossWeightSchedule({"points_concentration": [[0, 0.0], [5, 0.01]]}).check_model(model)  # a schedulable name
+    for name in ("points", "views", "cfc"):  # no masked losses: they need the train views
+        model.loss_weights[name] = 0.0
+    batch = ray_batch()
+    renders = model.render(batch.rays, randomized=False)
+    points = renders.augmented["points"]
+    cut = model.augmentations[0].min_ndc_z
+    z = renders.main.coarse_samples.positions[..., 2]
+    assert bool((z < cut).any()) and bool((points.weights[z < cut] == 0).all())  # empty in front of the cut
+    behind = (z >= cut)[:, :-1]  # the last sample, at t = 1, has an empty interval
+    assert bool((points.weights[:, :-1][behind] > 0).all())
+    losses, _ = model.random_ray_losses(renders, batch)
+    assert set(losses) == {"color", "points_concentration"}
+    torch.testing.assert_close(losses["points_concentration"], mass_concentration_loss(points.weights, 5))
+    torch.testing.assert_close(model.weighted(losses), losses["color"] + 0.01 * losses["points_concentration"])
+    model.loss_weights["points_concentration"] = 0.0  # before its schedule starts: not computed
+    assert set(model.random_ray_losses(renders, batch)[0]) == {"color"}

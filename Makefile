@@ -34,7 +34,7 @@ demo: $(VENV)/.installed
 	$(SIMPLENERF) test $(DEMO) --ckpt_path last
 	$(SIMPLENERF) fit $(DSNERF) --overwrite true
 	$(SIMPLENERF) test $(DSNERF) --ckpt_path last
-	$(SIMPLENERF) render-video $(DEMO) --ckpt runs/grid_demo/checkpoints/last.ckpt --scale 1.5 --frames 60 --rotations 1 --fps 20
+	$(SIMPLENERF) render-video $(DEMO) --ckpt runs/grid_demo/checkpoints/last.ckpt --scale 1.5 --frames 40 --rotations 1 --fps 15
 	@echo "Test metrics on the synthetic 'objects' scene (3 views, same budget), renders in runs/grid_demo*/test:"
 	@$(SIMPLENERF) results SimpleNeRF=runs/grid_demo DS-NeRF=runs/grid_demo_dsnerf --scores both --depth
 	@echo "SimpleNeRF's spiral video ([RGB | depth]): runs/grid_demo/video_spiral.mp4"

@@ -30,6 +30,6 @@ for variant in demo demo_dsnerf; do
   timed "test $variant" "$PYTHON" -m simplenerf test "${args[@]}" --ckpt_path last
 done
 timed "video" "$PYTHON" -m simplenerf render-video --config configs/grid/demo.yaml \
-  --ckpt "$RUNS/grid_demo/checkpoints/last.ckpt" --scale 1.5 --frames 60 --rotations 1 --fps 20 -- --trainer.default_root_dir "$RUNS/grid_demo"
+  --ckpt "$RUNS/grid_demo/checkpoints/last.ckpt" --scale 1.5 --frames 40 --rotations 1 --fps 15 -- --trainer.default_root_dir "$RUNS/grid_demo"
 echo "total: $(( $(date +%s) - start )) s wall"
 "$PYTHON" -m simplenerf results SimpleNeRF="$RUNS/grid_demo" DS-NeRF="$RUNS/grid_demo_dsnerf" --scores both --depth

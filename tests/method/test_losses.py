@@ -10,6 +10,7 @@ from simplenerf.data.batches import RayBatch
 from simplenerf.geometry.rays import make_rays
 from simplenerf.method.augmentations import Augmentation
 from simplenerf.method.losses import bin_sizes, mass_concentration_loss
+from simplenerf.method.objective import Objective, RenderedRays, part_loss
 from simplenerf.method.reliability import PatchReprojectionMask
 from simplenerf.model.grid import KPlanesField
 from simplenerf.model.nerf import NeRF
@@ -54,7 +55,7 @@ def grid_module(concentration_weight: float) -> SimpleNeRF:
                          PatchReprojectionMask(), min_ndc_z=-0.5, concentration_weight=concentration_weight),
             Augmentation("views", small_grid(view_dependent=False), PatchReprojectionMask())]
     nerf = NeRF(small_grid(), small_grid(), num_coarse=10, num_fine=6, density_noise_std=0.0)
-    return SimpleNeRF(nerf, augmentations=augs, coarse_fine_mask=PatchReprojectionMask())
+    return SimpleNeRF(nerf, augmentations=augs, objective=Objective(coarse_fine_mask=PatchReprojectionMask()))
 
 
 def ray_batch(n: int = 12) -> RayBatch:
@@ -64,12 +65,16 @@ def ray_batch(n: int = 12) -> RayBatch:
     return RayBatch(make_rays(k, c2w, uv, 32, 24, near=1.0), torch.rand(n, 3), torch.zeros(n, dtype=torch.long), uv)
 
 
-def test_module_adds_the_concentration_loss_of_an_augmentation_by_name():
+def test_module_adds_the_concentration_term_of_an_augmentation_by_name():
     model = grid_module(concentration_weight=0.01)
-    assert model.loss_weights["points_concentration"] == 0.01 and "views_concentration" not in model.loss_weights
+    assert model.terms["points_concentration"].weight == 0.01 and "views_concentration" not in model.terms
+    assert model.terms["points_concentration"].reads == ("random",)
     LossWeightSchedule({"points_concentration": [[0, 0.0], [5, 0.01]]}).check_model(model)  # a schedulable name
-    for name in ("points", "views", "cfc"):  # no masked losses: they need the train views
-        model.loss_weights[name] = 0.0
+    for name in ("points", "views", "cfc"):  # no masked terms: they need the train views
+        model.terms[name].weight = 0.0
+    for term in model.terms.values():  # no regularisers either: only the ray terms are compared
+        if term.name.startswith("tv_"):
+            term.weight = 0.0
     batch = ray_batch()
     renders = model.render(batch.rays, randomized=False)
     points = renders.augmented["points"]
@@ -78,9 +83,11 @@ def test_module_adds_the_concentration_loss_of_an_augmentation_by_name():
     assert bool((z < cut).any()) and bool((points.weights[z < cut] == 0).all())  # empty in front of the cut
     behind = (z >= cut)[:, :-1]  # the last sample, at t = 1, has an empty interval
     assert bool((points.weights[:, :-1][behind] > 0).all())
-    losses, _ = model.random_ray_losses(renders, batch)
-    assert set(losses) == {"color", "points_concentration"}
-    torch.testing.assert_close(losses["points_concentration"], mass_concentration_loss(points.weights, 5))
-    torch.testing.assert_close(model.weighted(losses), losses["color"] + 0.01 * losses["points_concentration"])
-    model.loss_weights["points_concentration"] = 0.0  # before its schedule starts: not computed
-    assert set(model.random_ray_losses(renders, batch)[0]) == {"color"}
+    rendered = [RenderedRays("random", batch, renders, share=1.0)]
+    part = part_loss(model.terms, rendered, regularize=False)
+    assert set(part.values) == {"color", "points_concentration"}
+    torch.testing.assert_close(part.values["points_concentration"], mass_concentration_loss(points.weights, 5))
+    torch.testing.assert_close(part.loss, part.values["color"] + 0.01 * part.values["points_concentration"])
+    model.terms["points_concentration"].weight = 0.0  # before its schedule starts: not computed
+    assert set(part_loss(model.terms, rendered, regularize=False).values) == {"color"}
+

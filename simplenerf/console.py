@@ -173,6 +173,9 @@ def quiet_libraries() -> None:
         warnings.filterwarnings("default", category=category, module=r"simplenerf(\.|$)")
     # Checked by the CLI before the run: the folder has checkpoints only when fit resumes from them.
     warnings.filterwarnings("ignore", message=r"Checkpoint directory .* exists and is not empty")
+    # SimpleNeRF optimises manually, one update per step: a step's checkpoint holds the weights after its update, which
+    # is what a resume continues from (Lightning warns about exactly that).
+    warnings.filterwarnings("ignore", message=r"Using ModelCheckpoint with manual optimization")
     for name in ("lightning.pytorch", "lightning.fabric"):
         for handler in logging.getLogger(name).handlers:
             handler.addFilter(_DropTips())

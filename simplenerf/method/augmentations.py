@@ -57,9 +57,9 @@ class Augmentation(nn.Module):
                 fine samples and tied to the fine depth (the "w/o coarse-fine consistency" ablation adds those).
             min_ndc_z: the augmentation is empty in front of this NDC z (`rendering.cut_near`; Simple-TensoRF:
                 -0.5); None: no cut.
-            concentration_weight: weight of the mass-concentration loss on this augmentation's ray weights, the loss
-                term `<name>_concentration` of the objective (a schedule may change it; Simple-TensoRF: 0.01 from 20% of the
-                steps); None: no such loss.
+            concentration_weight: weight of the mass-concentration loss on this augmentation's ray weights, the term
+                `<name>_concentration` of the objective (a schedule may change it; Simple-TensoRF: 0.01 from 20% of
+                the steps); None: no such term.
             concentration_bins: groups of samples the loss sums the weights in (Simple-RF: 5).
         """
         super().__init__()

@@ -37,7 +37,9 @@ demo: $(VENV)/.installed
 	$(SIMPLENERF) render-video $(DEMO) --ckpt runs/grid_demo/checkpoints/last.ckpt --scale 1.5 --frames 40 --rotations 1 --fps 15
 	@echo "Test metrics on the synthetic 'objects' scene (3 views, same budget), renders in runs/grid_demo*/test:"
 	@$(SIMPLENERF) results SimpleNeRF=runs/grid_demo DS-NeRF=runs/grid_demo_dsnerf --scores both --depth
+	@$(PY) -m benchmarks.demo_picture runs/grid_demo runs/grid_demo_dsnerf --out docs/images/demo.png
 	@echo "SimpleNeRF's spiral video ([RGB | depth]): runs/grid_demo/video_spiral.mp4"
+	@echo "One held-out frame of both models (photo | render | depths | exact depth): docs/images/demo.png"
 
 test: $(VENV)/.installed
 	$(PY) -m pytest -q

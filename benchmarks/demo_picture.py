@@ -51,7 +51,8 @@ def main() -> None:
     ]
     gap = np.full((panels[0].shape[0], 4, 3), 255, np.uint8)
     row = np.concatenate([p for item in panels for p in (item, gap)][:-1], axis=1)
-    write_png(args.out, row)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    write_png(Path(args.out), row)
     print(args.out)
 
 

@@ -21,15 +21,16 @@ def poses_to_opengl(poses_bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     return c2w, mats[:, :, 4], poses_bounds[:, 15:17]
 
 
-def _normalize(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v)
+def normalize(v: np.ndarray) -> np.ndarray:
+    """Unit vectors [..., 3] along v [..., 3]."""
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
 def average_pose(c2w: np.ndarray) -> np.ndarray:
     """The mean camera [3, 4]: mean centre, mean viewing axis, mean up vector (orthonormalised)."""
     centre = c2w[:, :, 3].mean(0)
-    back = _normalize(c2w[:, :, 2].sum(0))
-    right = _normalize(np.cross(c2w[:, :, 1].sum(0), back))
+    back = normalize(c2w[:, :, 2].sum(0))
+    right = normalize(np.cross(c2w[:, :, 1].sum(0), back))
     up = np.cross(back, right)
     return np.stack([right, up, back, centre], axis=-1)
 

@@ -13,14 +13,10 @@ from typing import Literal
 import numpy as np
 import torch
 
-from simplenerf.geometry.poses import average_pose
+from simplenerf.geometry.poses import average_pose, normalize
 from simplenerf.geometry.views import Views
 
 TrajectoryKind = Literal["spiral", "recorded"]
-
-
-def _normalize(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
 def spiral_focus_depth(bounds: np.ndarray, dt: float = 0.75) -> float:
@@ -64,7 +60,7 @@ def llff_spiral(
     poses = c2w.detach().cpu().double().numpy()
     centre_pose = average_pose(poses)
     rotation, centre = centre_pose[:, :3], centre_pose[:, 3]
-    up = _normalize(poses[:, :, 1].sum(0))
+    up = normalize(poses[:, :, 1].sum(0))
     offsets = (poses[:, :, 3] - centre) @ rotation  # [V, 3] positions in the average pose's frame
     radii = np.percentile(np.abs(offsets), 90, axis=0)
 
@@ -72,8 +68,8 @@ def llff_spiral(
     local = np.stack([np.cos(theta), -np.sin(theta), -np.sin(zrate * theta)], axis=-1) * radii  # [N, 3]
     positions = centre + local @ rotation.T
     focus = centre - spiral_focus_depth(b) * rotation[:, 2]  # on the average viewing axis (-z)
-    back = _normalize(positions - focus)  # the camera looks along -back, i.e. at the focus point
-    right = _normalize(np.cross(up, back))
+    back = normalize(positions - focus)  # the camera looks along -back, i.e. at the focus point
+    right = normalize(np.cross(up, back))
     cam_up = np.cross(back, right)
     path = np.stack([right, cam_up, back, positions], axis=-1)  # [N, 3, 4]
     return torch.from_numpy(path).to(dtype=c2w.dtype, device=c2w.device)

@@ -95,7 +95,8 @@ class Row:
         return f"{self.model} ({repeats[0] if len(repeats) == 1 else f'{repeats[0]}-{repeats[-1]}'} runs)"
 
 
-def _unique(items: Iterable[str]) -> list[str]:
+def unique(items: Iterable[str]) -> list[str]:
+    """The items without repeats, in first-seen order."""
     return list(dict.fromkeys(items))
 
 
@@ -200,7 +201,7 @@ def load_release(model: str, path: Path) -> list[Record]:
                         f"name it as {folder}@N")
     scores = [s for s in read_release_folder(folder) if s.key is not None]
     records = []
-    for scene in _unique(scene for s in scores for scene in s.scenes):
+    for scene in unique(scene for s in scores for scene in s.scenes):
         frames = {key: () for key in ALL_KEYS}
         for s in scores:
             pairs = zip(s.scenes, s.values, strict=True)
@@ -238,7 +239,7 @@ def mean_rows(records: Sequence[Record]) -> list[Row]:
     the model's scenes with that view count (the paper's averaging); with repeats, the mean and standard deviation of
     the repeats' such means. A score some of those scenes have no frame of has no mean (see `coverage_warnings`)."""
     rows = []
-    for model in _unique(r.model for r in records):
+    for model in unique(r.model for r in records):
         own = [r for r in records if r.model == model]
         values: dict[tuple[int, str], float] = {}
         spread: dict[tuple[int, str], float] = {}
@@ -247,7 +248,7 @@ def mean_rows(records: Sequence[Record]) -> list[Row]:
         runs: dict[int, int] = {}
         for n in sorted({r.n_views for r in own}):
             group = [r for r in own if r.n_views == n]
-            scenes[n] = tuple(_unique(r.scene for r in group))
+            scenes[n] = tuple(unique(r.scene for r in group))
             repeated = repeats(group)
             runs[n] = len(repeated)
             for key in ALL_KEYS:
@@ -264,7 +265,7 @@ def mean_rows(records: Sequence[Record]) -> list[Row]:
 
 def per_scene_rows(records: Sequence[Record]) -> dict[str, list[Row]]:
     """Scene (in order of first appearance) -> one row per model with that scene's scores (its frame means)."""
-    return {scene: mean_rows([r for r in records if r.scene == scene]) for scene in _unique(r.scene for r in records)}
+    return {scene: mean_rows([r for r in records if r.scene == scene]) for scene in unique(r.scene for r in records)}
 
 
 def coverage_warnings(records: Sequence[Record], keys: Sequence[str]) -> list[str]:
@@ -274,12 +275,12 @@ def coverage_warnings(records: Sequence[Record], keys: Sequence[str]) -> list[st
     for n in sorted({r.n_views for r in records}):
         group = [r for r in records if r.n_views == n]
         present = {(r.model, r.scene) for r in group}
-        missing = [(m, s) for m in _unique(r.model for r in group) for s in _unique(r.scene for r in group)
+        missing = [(m, s) for m in unique(r.model for r in group) for s in unique(r.scene for r in group)
                    if (m, s) not in present]
         if missing:
             warnings.append(f"{n} views: models are averaged over different scenes; missing runs: "
                             + ", ".join(f"({m}, {s}, {n} views)" for m, s in missing))
-    for model in _unique(r.model for r in records):
+    for model in unique(r.model for r in records):
         for n in sorted({r.n_views for r in records if r.model == model}):
             group = [r for r in records if r.model == model and r.n_views == n]
             for r in group:

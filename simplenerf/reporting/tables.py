@@ -21,7 +21,7 @@ This module imports no torch or Lightning, so the table command starts at once.
 from __future__ import annotations
 
 import csv
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 from simplenerf.reporting.paper_scores import TABLES
@@ -31,6 +31,7 @@ from simplenerf.reporting.records import (
     METRICS,
     Record,
     Row,
+    unique,
 )
 
 HEADERS = {"lpips": "LPIPS ↓", "ssim": "SSIM ↑", "psnr": "PSNR ↑", "depth_mae": "MAE ↓", "depth_srocc": "SROCC ↑",
@@ -38,10 +39,6 @@ HEADERS = {"lpips": "LPIPS ↓", "ssim": "SSIM ↑", "psnr": "PSNR ↑", "depth_
 SCORES = ("masked", "full", "both")
 CSV_FIELDS = ("table", "model", "source", "n_views", "metric", "value", "scenes", "frames", "std", "runs")
 MISSING = "-"
-
-
-def _unique(items: Iterable[str]) -> list[str]:
-    return list(dict.fromkeys(items))
 
 
 def table_metrics(depth: bool, heldout: bool = False) -> tuple[str, ...]:
@@ -77,7 +74,7 @@ def paper_scene_notes(records: Sequence[Record], table: str) -> list[str]:
     scenes = TABLES[table].scenes
     notes = []
     for n in sorted({r.n_views for r in records}):
-        measured = _unique(r.scene for r in records if r.n_views == n)
+        measured = unique(r.scene for r in records if r.n_views == n)
         if set(measured) != set(scenes):
             notes.append(f"{n} views: the (paper) rows are means over {len(scenes)} scenes ({', '.join(scenes)}), the "
                          f"measured rows over {', '.join(measured)}")

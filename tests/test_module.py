@@ -146,7 +146,7 @@ def test_a_schedule_naming_an_unknown_loss_is_one_clear_error():
 
     model = simplenerf_module()
     LossWeightSchedule({"points": [(0, 0.0)], "cfc": [(0, 0.0)]}).check_model(model)  # known names pass
-    with pytest.raises(SimpleNeRFError, match=r"schedules 'point', but the model's losses are cfc, color, points"):
+    with pytest.raises(SimpleNeRFError, match=r"schedules 'point', but the model's losses are cfc, color, fine_concentration, points"):
         LossWeightSchedule({"point": [(0, 0.0)]}).check_model(model)
 
 

@@ -54,6 +54,11 @@ class Objective:
         depth_loss_space: what L_ap, L_av and L_cfc compare: `metric` depth (the paper and the release) or `inverse`
             depth 1 / z, bounded by 1 / near. Metric depth grows without bound towards the NDC far plane, where a few
             rays can dominate these squared losses (docs/results.md "Grid backbone"). The masks compare metric depth.
+        fine_concentration_weight: weight of Simple-RF's mass concentration (`losses.mass_concentration_loss`, the
+            term "fine_concentration") on the main fine render's ray weights; 0 (the paper): off. Not in the paper
+            nor in Simple-RF, which put it on the augmentation only (docs/results.md "Simple-RF's augmentation on the
+            grid").
+        concentration_bins: the bins of that loss.
     """
 
     color_weight: float = 1.0
@@ -63,6 +68,8 @@ class Objective:
     coarse_fine_on_sparse_rays: bool = True
     supervision: Direction = "one_way"
     depth_loss_space: Literal["metric", "inverse"] = "metric"
+    fine_concentration_weight: float = 0.0
+    concentration_bins: int = 5
 
 
 @dataclass
@@ -169,6 +176,7 @@ class ConcentrationTerm(Term):
     arXiv 2404.19015), on the random rays: against a translucent augmented depth winning a reliability mask."""
 
     def __init__(self, augmentation: str, weight: float, bins: int) -> None:
+        """`augmentation`: the render's name (an augmentation's, or "fine")."""
         super().__init__(f"{augmentation}_concentration", weight, ("random",))
         self.augmentation, self.bins = augmentation, bins
 
@@ -202,6 +210,7 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
         terms.append(MaskedDepthTerm(aug.name, aug.depth_weight, aug.mask, aug.stage, aug.name, **depth))
     terms += [ConcentrationTerm(aug.name, aug.concentration_weight, aug.concentration_bins) for aug in augmentations
               if aug.concentration_weight is not None]
+    terms.append(ConcentrationTerm("fine", objective.fine_concentration_weight, objective.concentration_bins))
     if objective.coarse_fine_mask is not None:
         terms.append(MaskedDepthTerm("cfc", objective.coarse_fine_weight, objective.coarse_fine_mask, "coarse", "fine",
                                      on_sparse_rays=objective.coarse_fine_on_sparse_rays, **depth))

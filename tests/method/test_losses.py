@@ -91,3 +91,22 @@ def test_module_adds_the_concentration_term_of_an_augmentation_by_name():
     model.terms["points_concentration"].weight = 0.0  # before its schedule starts: not computed
     assert set(part_loss(model.terms, rendered, regularize=False).values) == {"color"}
 
+
+
+def test_the_objective_can_put_the_concentration_on_the_main_fine_render():
+    torch.manual_seed(0)
+    nerf = NeRF(small_grid(), small_grid(), num_coarse=10, num_fine=6, density_noise_std=0.0)
+    model = SimpleNeRF(nerf, objective=Objective(fine_concentration_weight=0.02, concentration_bins=4))
+    assert model.terms["fine_concentration"].weight == 0.02
+    for term in model.terms.values():  # only colour and the concentration are compared
+        if term.name.startswith("tv_"):
+            term.weight = 0.0
+    batch = ray_batch()
+    renders = model.render(batch.rays, randomized=False)
+    part = part_loss(model.terms, [RenderedRays("random", batch, renders, share=1.0)], regularize=False)
+    assert set(part.values) == {"color", "fine_concentration"}
+    torch.testing.assert_close(part.values["fine_concentration"], mass_concentration_loss(renders.main.fine.weights, 4))
+    torch.testing.assert_close(part.loss, part.values["color"] + 0.02 * part.values["fine_concentration"])
+    assert "fine_concentration" not in part_loss(  # the paper's default: off, not computed
+        SimpleNeRF(NeRF(small_grid(), small_grid(), num_coarse=10, num_fine=6)).terms,
+        [RenderedRays("random", batch, renders, share=1.0)], regularize=False).values

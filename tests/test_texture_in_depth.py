@@ -1,0 +1,32 @@
+"""benchmarks.texture_in_depth: the score of texture printed into depth, on a hand-made plane with one edge."""
+
+import numpy as np
+import pytest
+
+from benchmarks.texture_in_depth import flat_pixels, score
+
+
+def test_flat_pixels_are_those_whose_neighbourhood_is_on_one_plane():
+    rows, cols = np.mgrid[0:8, 0:8].astype(float)
+    exact = 1.0 / (0.5 + 0.01 * rows + 0.02 * cols)  # one plane: inverse depth affine in the pixel
+    assert flat_pixels(exact, 1e-3)[1:-1, 1:-1].all() and not flat_pixels(exact, 1e-3)[0].any()
+    exact[:, 5:] = 4.0  # a second plane from column 5: its border columns 4 and 5 are not flat
+    flat = flat_pixels(exact, 1e-3)
+    assert flat[1:-1, [1, 2, 3, 6]].all() and not flat[:, [4, 5]].any()
+
+
+def test_texture_printed_into_depth_makes_the_error_jump_at_the_photos_edges():
+    exact = np.full((8, 8), 2.0)  # a fronto-parallel plane
+    grey = np.zeros((8, 8))
+    grey[:, 4:] = 1.0  # one vertical edge between columns 3 and 4
+    image = np.repeat(grey[..., None], 3, axis=-1)
+    cols = np.mgrid[0:8, 0:8][1].astype(float)
+    assert score(exact, exact, image, 1e-3, 0.2)["flat_roughness"] == 0.0
+    # relative error e = 0.1 grey (the texture) + 0.01 col (a smooth tilt): |grad e| is 0.01 on the plain pixels,
+    # 0.1 / 2 + 0.01 on the 12 flat pixels of columns 3 and 4 (the edge's, the top 20% of the flat pixels' edges)
+    depth = exact * (1.0 + 0.1 * grey + 0.01 * cols)
+    s = score(depth, exact, image, 1e-3, 0.2)
+    assert s["textured_roughness"] == pytest.approx(0.06) and s["plain_roughness"] == pytest.approx(0.01)
+    assert s["flat_roughness"] == pytest.approx((12 * 0.06 + 24 * 0.01) / 36)
+    assert s["flat_error"] == pytest.approx(0.01 * 3.5 + 0.1 * 0.5)  # interior columns 1-6, grey 1 on 4-6
+    assert s["flat_fraction"] == pytest.approx(36 / 64)

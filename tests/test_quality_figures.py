@@ -1,8 +1,11 @@
-"""benchmarks.texture_in_depth: the score of texture printed into depth, on a hand-made plane with one edge."""
+"""The figures of benchmarks/ that score a run's maps: texture printed into depth (benchmarks.texture_in_depth) on a
+hand-made plane with one edge, and streaks along the image axes (benchmarks.streak_index) on hand-made maps."""
 
+import cv2
 import numpy as np
 import pytest
 
+from benchmarks.streak_index import axis_ratio, streak_index
 from benchmarks.texture_in_depth import flat_pixels, score
 
 
@@ -30,3 +33,23 @@ def test_texture_printed_into_depth_makes_the_error_jump_at_the_photos_edges():
     assert s["flat_roughness"] == pytest.approx((12 * 0.06 + 24 * 0.01) / 36)
     assert s["flat_error"] == pytest.approx(0.01 * 3.5 + 0.1 * 0.5)  # interior columns 1-6, grey 1 on 4-6
     assert s["flat_fraction"] == pytest.approx(36 / 64)
+
+
+def test_axis_ratio_is_the_row_over_the_column_variation():
+    rows, cols = np.mgrid[0:6, 0:9].astype(float)
+    assert axis_ratio(2.0 * rows + cols) == pytest.approx(2.0)
+    assert axis_ratio(np.repeat((rows + cols)[..., None], 3, axis=-1)) == pytest.approx(1.0)
+
+
+def test_streak_index_divides_by_the_photos_ratio(tmp_path):
+    rows, cols = np.mgrid[0:6, 0:9].astype(float)
+    photo = np.repeat((10.0 * rows + 20.0 * cols)[..., None], 3, axis=-1).astype(np.uint8)  # ratio 0.5
+    photos = [tmp_path / f"{i:03d}.png" for i in range(3)]
+    for path in photos:
+        cv2.imwrite(str(path), photo)
+    run = tmp_path / "run"
+    (run / "test" / "depth").mkdir(parents=True)
+    (run / "test" / "rgb").mkdir()
+    np.save(run / "test" / "depth" / "image002.npy", 3.0 * rows + cols)  # ratio 3: smeared along rows
+    cv2.imwrite(str(run / "test" / "rgb" / "image002.png"), photo)
+    assert streak_index(run, photos) == pytest.approx({"depth": 6.0, "render": 1.0, "frames": 1})

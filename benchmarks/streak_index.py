@@ -1,8 +1,8 @@
 """Streaks along the image axes in a run's test renders and depth maps (docs/results.md "Simple-RF's augmentation on
 the grid"): for a map, the mean |difference between neighbouring rows| over the mean |difference between neighbouring
 columns|, divided by the same ratio of the held-out photo. 1: as isotropic as the photo; above 1: smeared along rows
-(horizontal streaks); below 1: along columns. Frames are matched to the photos of the scene's `images_<factor>`
-folder by the index in their name (`image008` -> the 9th photo), as `simplenerf test` names them on LLFF.
+(horizontal streaks); below 1: along columns. A frame is matched to the photo of the scene's `images_<factor>`
+folder with the same name, else by the index its name ends with (`image008` -> the 9th photo).
 
     python -m benchmarks.streak_index runs/grid/fern_seed0_simplenerf --scene ../shared/data/nerf_llff_data/fern
 """
@@ -28,14 +28,16 @@ def axis_ratio(values: np.ndarray) -> float:
 
 def streak_index(run: Path, photos: list[Path]) -> dict[str, float]:
     """Mean streak index over the run's test frames, of the depth maps and of the renders."""
+    by_name = {p.stem: p for p in photos}
     depth, render = [], []
     for path in sorted((run / "test" / "depth").glob("*.npy")):
         found = re.search(r"(\d+)$", path.stem)
-        if found is None:
-            raise SystemExit(f"{path}: no frame index in the name")
-        photo = cv2.imread(str(photos[int(found.group(1))]))
+        if path.stem not in by_name and (found is None or int(found.group(1)) >= len(photos)):
+            raise SystemExit(f"{path}: no photo of that name, nor an index among the {len(photos)} photos")
+        photo_path = by_name.get(path.stem) or photos[int(found.group(1))]
+        photo = cv2.imread(str(photo_path))
         if photo is None:
-            raise SystemExit(f"{photos[int(found.group(1))]}: not an image")
+            raise SystemExit(f"{photo_path}: not an image")
         reference = axis_ratio(photo)
         depth.append(axis_ratio(np.load(path)) / reference)
         rgb = cv2.imread(str(run / "test" / "rgb" / f"{path.stem}.png"))

@@ -53,3 +53,9 @@ def test_streak_index_divides_by_the_photos_ratio(tmp_path):
     np.save(run / "test" / "depth" / "image002.npy", 3.0 * rows + cols)  # ratio 3: smeared along rows
     cv2.imwrite(str(run / "test" / "rgb" / "image002.png"), photo)
     assert streak_index(run, photos) == pytest.approx({"depth": 6.0, "render": 1.0, "frames": 1})
+    named = tmp_path / "DJI_1.png"  # matched by name first
+    cv2.imwrite(str(named), np.ascontiguousarray(photo.transpose(1, 0, 2)))  # ratio 2
+    np.save(run / "test" / "depth" / "DJI_1.npy", 3.0 * rows + cols)
+    cv2.imwrite(str(run / "test" / "rgb" / "DJI_1.png"), photo)
+    assert streak_index(run, [*photos, named]) == pytest.approx({"depth": (6.0 + 1.5) / 2, "render": 0.625,
+                                                                 "frames": 2})

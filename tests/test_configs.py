@@ -131,3 +131,12 @@ def test_sweep_file_parses_and_its_model_configs_parse(sweep, monkeypatch):
     monkeypatch.chdir(CONFIG_DIR.parent)  # the sweep files' paths are relative to the repository root
     plan = build_plan(load_sweep(sweep), sweep, check_scenes=False)
     assert plan.stage("fit") and plan.stage("test") and plan.stage("table")
+
+
+def test_the_realestate_simple_rf_config_has_the_llff_ones_augmentations_and_schedules():
+    import yaml  # the files as written: the augmentation list and the schedules are copies that must not drift
+
+    llff, realestate = (yaml.safe_load((CONFIG_DIR / "grid" / f"{name}.yaml").read_text())
+                        for name in ("simplerf", "realestate_simplerf"))
+    assert realestate["model"]["augmentations"] == llff["model"]["augmentations"]
+    assert realestate["trainer"]["callbacks"] == llff["trainer"]["callbacks"]

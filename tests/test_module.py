@@ -1,11 +1,14 @@
 """The LightningModule's loss composition (paper Sec. 4.4) on real data-module batches."""
 
+from types import SimpleNamespace
+
 import pytest
 import torch
 
 from simplenerf.data.batches import TrainingBatch
 from simplenerf.data.synthetic import SyntheticDataModule
-from simplenerf.method.objective import Objective
+from simplenerf.method.objective import Objective, RenderedRays
+from simplenerf.method.reliability import ReliabilityMask
 from simplenerf.model.nerf import mlp_nerf
 from simplenerf.module import SimpleNeRF
 
@@ -82,6 +85,34 @@ def simplenerf_module(supervision: str = "bidirectional", rays_per_backward: int
                       rays_per_backward=rays_per_backward)
 
 
+class FineMoreReliable(ReliabilityMask):
+    """A mask of -1 on every ray: for L_cfc, the fine depth is the more reliable one (bypasses the reprojection)."""
+
+    def __call__(self, views, rays, z_main, z_other):
+        return -torch.ones_like(z_main)
+
+
+@pytest.mark.parametrize("cfc_direction", [None, "one_way", "bidirectional"])
+def test_coarse_fine_supervision_sets_the_direction_of_l_cfc_alone(batch, cfc_direction):
+    objective = Objective(coarse_fine_mask=FineMoreReliable(), supervision="bidirectional",
+                          coarse_fine_supervision=cfc_direction)
+    model = SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, num_layers=2, width=16, skip_layer=1), objective=objective)
+    expected = cfc_direction or "bidirectional"
+    assert model.terms["cfc"].supervision == expected
+    renders = model.render(batch.random.rays, randomized=False)
+    rendered = RenderedRays("random", batch.random, renders, share=1.0, errors=SimpleNamespace(views=None, rays=None))
+    value = model.terms["cfc"].value(rendered).value
+    fine, coarse = renders.main.fine.depth, renders.main.coarse.depth
+    g_fine, g_coarse = torch.autograd.grad(value, [fine, coarse], allow_unused=True)
+    # Every ray -1: the bidirectional loss trains the fine depth toward the coarse one, the one-way loss nothing.
+    if expected == "one_way":
+        assert value.item() == 0.0 and (g_fine is None or not g_fine.any())
+    else:
+        torch.testing.assert_close(value, (coarse.detach() - fine).square().mean())
+        torch.testing.assert_close(g_fine, 2 * (fine - coarse).detach() / fine.numel())
+    assert g_coarse is None or not g_coarse.any()  # never toward the fine depth where it is the less reliable
+
+
 def run_step(model, dm, monkeypatch) -> tuple[torch.Tensor, dict]:
     model.set_train_views(dm.train_views)
     return step(model, next(iter(dm.train_dataloader())), monkeypatch)
@@ -146,7 +177,8 @@ def test_a_schedule_naming_an_unknown_loss_is_one_clear_error():
 
     model = simplenerf_module()
     LossWeightSchedule({"points": [(0, 0.0)], "cfc": [(0, 0.0)]}).check_model(model)  # known names pass
-    with pytest.raises(SimpleNeRFError, match=r"schedules 'point', but the model's losses are cfc, color, fine_concentration, points"):
+    known = "cfc, color, fine_concentration, points"
+    with pytest.raises(SimpleNeRFError, match=rf"schedules 'point', but the model's losses are {known}"):
         LossWeightSchedule({"point": [(0, 0.0)]}).check_model(model)
 
 

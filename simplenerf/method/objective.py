@@ -54,6 +54,9 @@ class Objective:
         depth_loss_space: what L_ap, L_av and L_cfc compare: `metric` depth (the paper and the release) or `inverse`
             depth 1 / z, bounded by 1 / near. Metric depth grows without bound towards the NDC far plane, where a few
             rays can dominate these squared losses (docs/results.md "Grid backbone"). The masks compare metric depth.
+        coarse_fine_supervision: the direction of L_cfc alone; null: `supervision`. `one_way` with a `bidirectional`
+            `supervision` trains the coarse depth toward the fine one but never the fine toward the coarse, while
+            L_ap and L_av stay bidirectional (docs/results.md "Simple-RF's augmentation on the grid").
         fine_concentration_weight: weight of Simple-RF's mass concentration (`losses.mass_concentration_loss`, the
             term "fine_concentration") on the main fine render's ray weights; 0 (the paper): off. Not in the paper
             nor in Simple-RF, which put it on the augmentation only (docs/results.md "Simple-RF's augmentation on the
@@ -68,6 +71,7 @@ class Objective:
     coarse_fine_on_sparse_rays: bool = True
     supervision: Direction = "one_way"
     depth_loss_space: Literal["metric", "inverse"] = "metric"
+    coarse_fine_supervision: Direction | None = None
     fine_concentration_weight: float = 0.0
     concentration_bins: int = 5
 
@@ -212,8 +216,9 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
               if aug.concentration_weight is not None]
     terms.append(ConcentrationTerm("fine", objective.fine_concentration_weight, objective.concentration_bins))
     if objective.coarse_fine_mask is not None:
+        cfc_depth = depth | {"supervision": objective.coarse_fine_supervision or objective.supervision}
         terms.append(MaskedDepthTerm("cfc", objective.coarse_fine_weight, objective.coarse_fine_mask, "coarse", "fine",
-                                     on_sparse_rays=objective.coarse_fine_on_sparse_rays, **depth))
+                                     on_sparse_rays=objective.coarse_fine_on_sparse_rays, **cfc_depth))
     for place, f in fields.items():
         terms += [RegularizerTerm(f"{name}_{place}", weight, f, name) for name, weight in f.regularizers().items()]
     names = [t.name for t in terms]

@@ -16,7 +16,8 @@
 # PYTHON (default .venv/bin/python), EXTRA (more CLI overrides for every fit) and, with STEPS, DEPTH_WEIGHT (the
 # weight of L_ap, L_av and L_cfc after the warm-up; default 0.1, the paper's) can be set. A variant is a config of
 # configs/grid/ (simplenerf, dsnerf, simplerf: Simple-RF's augmentation); with STEPS, a config's mass-concentration
-# losses (<name>_concentration) get CONCENTRATION_WEIGHT (default 0.01) from 20% of the steps.
+# losses (<name>_concentration) get CONCENTRATION_WEIGHT (default 0.01) from 20% of the steps. RESUME=1 continues a
+# stopped fit from its last checkpoint instead of starting it over (the fit's own time is then the resumed part's).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-.venv/bin/python}
@@ -27,7 +28,7 @@ SHARED=${SHARED:-../shared/data}
 export WANDB_MODE=${WANDB_MODE:-offline}
 LPIPS_NPZ=$SHARED/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz
 [ -f "$LPIPS_NPZ" ] && export SIMPLENERF_LPIPS_WEIGHTS=${SIMPLENERF_LPIPS_WEIGHTS:-$(realpath "$LPIPS_NPZ")}
-[ $# -gt 0 ] || { sed -n '2,17p' "$0"; exit 2; }
+[ $# -gt 0 ] || { sed -n '2,18p' "$0"; exit 2; }
 
 scene_dir() {  # scene name or path -> folder
   case $1 in
@@ -68,9 +69,10 @@ for scene in "$@"; do
       fi
       # shellcheck disable=SC2206
       args+=(${EXTRA:-})
-      start=$(date +%s)
+      start=$(date +%s) resume=(--overwrite true)
+      if [ -n "${RESUME:-}" ] && [ -f "$run/checkpoints/last.ckpt" ]; then resume=(--ckpt_path last); fi
       "$PYTHON" -m simplenerf fit --config "$config" "${args[@]}" --trainer.default_root_dir "$run" \
-        --trainer.logger.init_args.save_dir "$run" --overwrite true
+        --trainer.logger.init_args.save_dir "$run" "${resume[@]}"
       echo "$name $variant seed $seed: fit took $(( $(date +%s) - start )) s" | tee "$run/fit_time.txt"
       "$PYTHON" -m simplenerf test --config "$config" "${args[@]}" --trainer.logger false \
         --trainer.default_root_dir "$run" --ckpt_path "$run/checkpoints/last.ckpt"

@@ -251,7 +251,8 @@ class SimpleNeRFCLI(LightningCLI):
         if recorded is None:
             return  # written before runs recorded their settings
         allowed = tuple(config.get("allow_changes") or ())
-        changes = setting_changes(recorded, current, TEST_KEYS if subcommand == "test" else None, allowed)
+        classes = {"model": type(self.model), "data": type(self.datamodule)}
+        changes = setting_changes(recorded, current, TEST_KEYS if subcommand == "test" else None, allowed, classes)
         if not changes:
             return
         what = "resume" if subcommand == "fit" else "test"

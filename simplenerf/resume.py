@@ -14,7 +14,11 @@ The random-ray order continues too: `data.datasets.RandomRays` skips the batches
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
+import inspect
 import json
+import typing
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +67,9 @@ def run_settings(config: Any, datamodule: Any) -> dict[str, Any]:
 
 
 def _flatten(value: Any, prefix: str = "") -> dict[str, Any]:
+    """Dotted keys of the leaves; a list of objects (e.g. `model.augmentations`) by index, other lists whole."""
+    if isinstance(value, list) and value and all(isinstance(item, dict) for item in value):
+        value = {str(i): item for i, item in enumerate(value)}
     if isinstance(value, dict) and value:
         out: dict[str, Any] = {}
         for key, item in value.items():
@@ -71,16 +78,82 @@ def _flatten(value: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix: value}
 
 
+NO_DEFAULT = object()
+
+
+def _parameter(cls: type, name: str) -> tuple[Any, Any]:
+    """(default, class) of argument `name` of class `cls`: a dataclass field or an `__init__` argument (also of a
+    base class that the `__init__` passes `**kwargs` to); (NO_DEFAULT, None) where it has none or there is no such
+    argument. The class is the annotation where it resolves to one, else the default's."""
+    if dataclasses.is_dataclass(cls):
+        field = next((f for f in dataclasses.fields(cls) if f.name == name), None)
+        if field is None or (field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING):
+            return NO_DEFAULT, None
+        default = field.default if field.default is not dataclasses.MISSING else field.default_factory()
+        owner: Any = cls
+    else:
+        for owner in (k for k in cls.__mro__ if "__init__" in vars(k) and k is not object):
+            parameters = inspect.signature(owner.__init__).parameters
+            if name in parameters or not any(p.kind is p.VAR_KEYWORD for p in parameters.values()):
+                break
+        else:
+            return NO_DEFAULT, None
+        parameter = parameters.get(name)
+        if parameter is None or parameter.default is inspect.Parameter.empty:
+            return NO_DEFAULT, None
+        default, owner = parameter.default, owner.__init__
+    try:
+        kind = typing.get_type_hints(owner).get(name)
+    except Exception:  # an annotation that does not resolve: the default's class
+        kind = None
+    return default, kind if isinstance(kind, type) else type(default)
+
+
+def setting_default(settings: dict[str, Any], key: str, classes: dict[str, type]) -> Any:
+    """The value the current code gives setting `key` (a dotted key of `run_settings`, e.g.
+    `model.objective.coarse_fine_supervision` or `model.augmentations.0.init_args.min_ndc_z`) when it is not given:
+    its argument's default, found by following the settings' `class_path`s down from `classes` (the classes of the
+    top-level keys, e.g. {"model": SimpleNeRF, "data": LLFFDataModule}); `NO_DEFAULT` where there is none."""
+    root, *path = key.split(".")
+    cls, node = classes.get(root), settings.get(root)
+    for i, part in enumerate(path):
+        last = i == len(path) - 1
+        if isinstance(node, dict) and "class_path" in node and part in ("class_path", "init_args"):
+            if last or part == "class_path":
+                return NO_DEFAULT
+            try:
+                module, _, name = str(node["class_path"]).rpartition(".")
+                cls = getattr(importlib.import_module(module), name)
+            except (ImportError, AttributeError, ValueError):
+                return NO_DEFAULT
+            node = node.get("init_args") or {}
+            continue
+        if isinstance(node, list):  # an element of a list of objects: its class comes with its class_path
+            if last or not part.isdigit() or int(part) >= len(node):
+                return NO_DEFAULT
+            cls, node = None, node[int(part)]
+            continue
+        if not isinstance(cls, type):
+            return NO_DEFAULT
+        default, kind = _parameter(cls, part)
+        if last:
+            return default
+        cls, node = kind, node.get(part) if isinstance(node, dict) else None
+    return NO_DEFAULT
+
+
 def _short(value: Any) -> str:
     text = json.dumps(value) if not isinstance(value, str) else value
     return text if len(text) <= 60 else text[:57] + "..."
 
 
 def setting_changes(recorded: dict[str, Any], current: dict[str, Any], keys: tuple[str, ...] | None = None,
-                    allowed: tuple[str, ...] = ()) -> list[str]:
+                    allowed: tuple[str, ...] = (), classes: dict[str, type] | None = None) -> list[str]:
     """`key: recorded -> current` for each setting that differs (restricted to top-level `keys` if given), except
     those under an `allowed` key (a dotted key or a prefix of one, e.g. `data.init_args.rays_per_batch` or
-    `model.optimizer`; `data.init_args.X` and `data.X` both name the data module's argument X)."""
+    `model.optimizer`; `data.init_args.X` and `data.X` both name the data module's argument X), and, with `classes`
+    (see `setting_default`), a setting the run did not record whose value is the current code's default: an option
+    added to the code since the run was trained, left as it is (a new option's default keeps the old behaviour)."""
     if keys is not None:
         recorded = {k: v for k, v in recorded.items() if k in keys}
         current = {k: v for k, v in current.items() if k in keys}
@@ -91,6 +164,8 @@ def setting_changes(recorded: dict[str, Any], current: dict[str, Any], keys: tup
         if old.get(key, "(unset)") == new.get(key, "(unset)"):
             continue
         if any(key == a or key.startswith(a + ".") for a in allowed):
+            continue
+        if key not in old and classes is not None and new[key] == _plain(setting_default(current, key, classes)):
             continue
         changes.append(f"{key}: {_short(old.get(key, '(unset)'))} -> {_short(new.get(key, '(unset)'))}")
     return changes

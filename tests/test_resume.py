@@ -1,0 +1,91 @@
+"""The resume check's view of settings (simplenerf.resume): a setting that a run did not record (an option added to
+the code since it was trained) passes at the current code's default and nowhere else. The CLI's resumes and their
+one-line errors are in tests/test_faults.py."""
+
+import copy
+
+from simplenerf.data.synthetic import SyntheticDataModule
+from simplenerf.module import SimpleNeRF
+from simplenerf.resume import NO_DEFAULT, setting_changes, setting_default
+
+CLASSES = {"model": SimpleNeRF, "data": SyntheticDataModule}
+GRID = "simplenerf.model.grid.KPlanesField"
+
+
+def recorded() -> dict:
+    """Settings as `run_settings` records them, without the options added later in this test."""
+    field = {"class_path": GRID, "init_args": {"resolutions": [32, 64], "features": 8}}
+    return {
+        "data_class": "simplenerf.data.synthetic.SyntheticDataModule",
+        "data": {"n_views": 3, "rays_per_batch": 512},
+        "model": {
+            "nerf": {"class_path": "simplenerf.model.nerf.NeRF", "init_args": {"coarse": field, "num_coarse": 24}},
+            "augmentations": [{"class_path": "simplenerf.method.augmentations.Augmentation",
+                               "init_args": {"name": "points", "field": copy.deepcopy(field), "depth_weight": 0.1}}],
+            "objective": {"supervision": "bidirectional", "coarse_fine_weight": 0.1},
+            "chunk": 2048,
+        },
+    }
+
+
+def with_(settings: dict, key: str, value) -> dict:
+    """A copy with the dotted `key` set (list elements by index)."""
+    settings = copy.deepcopy(settings)
+    *path, last = key.split(".")
+    node = settings
+    for part in path:
+        node = node[int(part)] if isinstance(node, list) else node[part]
+    node[last] = value
+    return settings
+
+
+def test_defaults_are_found_through_dataclasses_class_paths_lists_and_base_classes():
+    settings = recorded()
+    assert setting_default(settings, "model.objective.coarse_fine_supervision", CLASSES) is None  # a dataclass field
+    assert setting_default(settings, "model.objective.fine_concentration_weight", CLASSES) == 0.0
+    assert setting_default(settings, "model.chunk", CLASSES) == 8192  # the module's own argument
+    assert setting_default(settings, "model.nerf.init_args.coarse.init_args.depth_tv_scale", CLASSES) == 1.0
+    assert setting_default(settings, "model.augmentations.0.init_args.min_ndc_z", CLASSES) is None
+    assert setting_default(settings, "model.augmentations.0.init_args.stage", CLASSES) == "coarse"
+    assert setting_default(settings, "model.augmentations.0.init_args.field.init_args.density_scales", CLASSES) is None
+    assert setting_default(settings, "data.n_views", CLASSES) == 2  # SceneDataModule's, through **kwargs
+    for key in ("model.objective.no_such_option", "model.nerf.class_path", "model.augmentations.0.init_args.name",
+                "model.augmentations.3.init_args.stage", "model.nerf.init_args.no_such.init_args.x", "other.key"):
+        assert setting_default(settings, key, CLASSES) is NO_DEFAULT, key
+    unknown = with_(settings, "model.nerf.class_path", "simplenerf.model.no_such.Field")
+    assert setting_default(unknown, "model.nerf.init_args.num_coarse", CLASSES) is NO_DEFAULT
+
+
+def test_an_option_added_since_the_run_passes_at_its_default_only():
+    old = recorded()
+    new = with_(old, "model.objective.coarse_fine_supervision", None)
+    new = with_(new, "model.augmentations.0.init_args.min_ndc_z", None)
+    new = with_(new, "model.nerf.init_args.coarse.init_args.density_features", None)
+    assert setting_changes(old, new, classes=CLASSES) == []
+    assert setting_changes(old, new) == [  # without the classes every unrecorded setting is a change, as before
+        "model.augmentations.0.init_args.min_ndc_z: (unset) -> null",
+        "model.nerf.init_args.coarse.init_args.density_features: (unset) -> null",
+        "model.objective.coarse_fine_supervision: (unset) -> null",
+    ]
+    changed = with_(new, "model.objective.coarse_fine_supervision", "one_way")
+    changed = with_(changed, "model.augmentations.0.init_args.min_ndc_z", -0.5)
+    assert setting_changes(old, changed, classes=CLASSES) == [
+        "model.augmentations.0.init_args.min_ndc_z: (unset) -> -0.5",
+        "model.objective.coarse_fine_supervision: (unset) -> one_way",
+    ]
+
+
+def test_recorded_settings_still_compare_whatever_the_defaults():
+    old = recorded()
+    # A recorded setting changed to the current default is a change: the run trained with the recorded value.
+    assert setting_changes(old, with_(old, "model.chunk", 8192), classes=CLASSES) == ["model.chunk: 2048 -> 8192"]
+    assert setting_changes(old, with_(old, "model.objective.coarse_fine_weight", 0.2), classes=CLASSES) == [
+        "model.objective.coarse_fine_weight: 0.1 -> 0.2"]
+    dropped = copy.deepcopy(old)
+    del dropped["model"]["objective"]["supervision"]  # an option the code no longer has
+    assert setting_changes(old, dropped, classes=CLASSES) == ["model.objective.supervision: bidirectional -> (unset)"]
+    two = with_(old, "model.augmentations", old["model"]["augmentations"] * 2)  # a second augmentation
+    assert setting_changes(old, two, classes=CLASSES)[0].startswith("model.augmentations.1.class_path: (unset) -> ")
+    resized = with_(old, "model.nerf.init_args.coarse.init_args.resolutions", [32, 64, 128])  # a list of numbers
+    assert setting_changes(old, resized, classes=CLASSES) == [
+        "model.nerf.init_args.coarse.init_args.resolutions: [32, 64] -> [32, 64, 128]"]

@@ -14,7 +14,6 @@ The random-ray order continues too: `data.datasets.RandomRays` skips the batches
 
 from __future__ import annotations
 
-import dataclasses
 import importlib
 import inspect
 import json
@@ -82,31 +81,23 @@ NO_DEFAULT = object()
 
 
 def _parameter(cls: type, name: str) -> tuple[Any, Any]:
-    """(default, class) of argument `name` of class `cls`: a dataclass field or an `__init__` argument (also of a
-    base class that the `__init__` passes `**kwargs` to); (NO_DEFAULT, None) where it has none or there is no such
-    argument. The class is the annotation where it resolves to one, else the default's."""
-    if dataclasses.is_dataclass(cls):
-        field = next((f for f in dataclasses.fields(cls) if f.name == name), None)
-        if field is None or (field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING):
-            return NO_DEFAULT, None
-        default = field.default if field.default is not dataclasses.MISSING else field.default_factory()
-        owner: Any = cls
-    else:
-        for owner in (k for k in cls.__mro__ if "__init__" in vars(k) and k is not object):
-            parameters = inspect.signature(owner.__init__).parameters
-            if name in parameters or not any(p.kind is p.VAR_KEYWORD for p in parameters.values()):
-                break
-        else:
-            return NO_DEFAULT, None
-        parameter = parameters.get(name)
-        if parameter is None or parameter.default is inspect.Parameter.empty:
-            return NO_DEFAULT, None
-        default, owner = parameter.default, owner.__init__
-    try:
-        kind = typing.get_type_hints(owner).get(name)
-    except Exception:  # an annotation that does not resolve: the default's class
-        kind = None
-    return default, kind if isinstance(kind, type) else type(default)
+    """(default, class) of `__init__` argument `name` of class `cls` (a dataclass's too), or of a base class that
+    the `__init__` passes `**kwargs` on to; (NO_DEFAULT, None) where it has no default or there is no such argument.
+    The class is the annotation where it resolves to one, else the default's."""
+    for owner in (k for k in cls.__mro__ if k is not object and "__init__" in vars(k)):
+        parameters = inspect.signature(owner.__init__).parameters
+        if name in parameters:
+            default = parameters[name].default
+            if default is inspect.Parameter.empty:
+                return NO_DEFAULT, None
+            try:
+                kind = typing.get_type_hints(owner.__init__).get(name)
+            except (NameError, TypeError):  # an annotation that does not resolve: the default's class
+                kind = None
+            return default, kind if isinstance(kind, type) else type(default)
+        if not any(p.kind is p.VAR_KEYWORD for p in parameters.values()):
+            break
+    return NO_DEFAULT, None
 
 
 def setting_default(settings: dict[str, Any], key: str, classes: dict[str, type]) -> Any:

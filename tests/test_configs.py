@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import pytest
+import yaml
 
 from simplenerf.lightning_cli import SimpleNeRFCLI, make_cli
 
@@ -134,8 +135,7 @@ def test_sweep_file_parses_and_its_model_configs_parse(sweep, monkeypatch):
 
 
 def test_the_realestate_simple_rf_config_has_the_llff_ones_augmentations_and_schedules():
-    import yaml  # the files as written: the augmentation list and the schedules are copies that must not drift
-
+    # The files as written: the augmentation list and the schedules are copies that must not drift.
     llff, realestate = (yaml.safe_load((CONFIG_DIR / "grid" / f"{name}.yaml").read_text())
                         for name in ("simplerf", "realestate_simplerf"))
     assert realestate["model"]["augmentations"] == llff["model"]["augmentations"]

@@ -134,7 +134,11 @@ def setting_default(settings: dict[str, Any], key: str, classes: dict[str, type]
 
 
 def _short(value: Any) -> str:
-    text = json.dumps(value) if not isinstance(value, str) else value
+    """A setting as the message shows it: a string (a path, a name) whole, since its end is often what differs
+    (`.../seed0_...` vs `.../seed1_...`); a longer list or mapping cut to 60 characters."""
+    if isinstance(value, str):
+        return value
+    text = json.dumps(value)
     return text if len(text) <= 60 else text[:57] + "..."
 
 

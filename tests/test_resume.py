@@ -86,6 +86,12 @@ def test_recorded_settings_still_compare_whatever_the_defaults():
     assert setting_changes(old, dropped, classes=CLASSES) == ["model.objective.supervision: bidirectional -> (unset)"]
     two = with_(old, "model.augmentations", old["model"]["augmentations"] * 2)  # a second augmentation
     assert setting_changes(old, two, classes=CLASSES)[0].startswith("model.augmentations.1.class_path: (unset) -> ")
+    # A long path is shown whole (its end is what differs), a long list cut.
+    scene = "/a/folder/long/enough/that/a/cut/after/sixty/characters/would/hide/the/scene/"
+    assert setting_changes({"scene": scene + "seed0"}, {"scene": scene + "seed1"}) == [
+        f"scene: {scene}seed0 -> {scene}seed1"]
+    assert setting_changes({"frames": list(range(30))}, {"frames": list(range(31))}) == [
+        f"frames: {str(list(range(30)))[:57]}... -> {str(list(range(31)))[:57]}..."]
     resized = with_(old, "model.nerf.init_args.coarse.init_args.resolutions", [32, 64, 128])  # a list of numbers
     assert setting_changes(old, resized, classes=CLASSES) == [
         "model.nerf.init_args.coarse.init_args.resolutions: [32, 64] -> [32, 64, 128]"]

@@ -267,6 +267,10 @@ def _write_scene(scene: SyntheticScene, out: Path, factors: Sequence[int]) -> No
         "planes": [p.describe() for p in scene.planes],
         "camera_centres": scene.c2w[:, :, 3].tolist(),
     }
+    if scene.kind == "objects":
+        # Its pictures are drawn by cv2, whose anti-aliased lines and text differ between OpenCV versions (4.14, 5.0
+        # and 5.1 give different images, and so different demo scores; `make setup` pins the version).
+        meta["drawn_with"] = f"OpenCV {cv2.__version__}"
     (out / "scene.json").write_text(json.dumps(meta, indent=2))
 
 

@@ -303,3 +303,16 @@ def test_command_line_entry(tmp_path: Path, capsys) -> None:
     assert capsys.readouterr().out == f"{tmp_path / 'cli'}\n"
     assert (tmp_path / "cli" / "images_2" / "001.png").is_file()
     assert np.load(tmp_path / "cli" / "poses_bounds.npy").shape == (2, 17)
+
+
+def test_an_objects_scene_records_the_opencv_that_drew_it(tmp_path: Path) -> None:
+    """The objects kind's pictures depend on OpenCV's drawing; scene.json says which version drew them, and one
+    install draws the same scene twice."""
+    first = sy.make_synthetic_scene(tmp_path / "a", height=H, width=W, n_frames=6, kind="objects")
+    second = sy.make_synthetic_scene(tmp_path / "b", height=H, width=W, n_frames=6, kind="objects")
+    assert json.loads((first / "scene.json").read_text())["drawn_with"] == f"OpenCV {cv2.__version__}"
+    for i in range(6):
+        name = f"images/{i:03d}.png"
+        assert (first / name).read_bytes() == (second / name).read_bytes()
+    planes = sy.make_synthetic_scene(tmp_path / "c", height=H, width=W, n_frames=6)
+    assert "drawn_with" not in json.loads((planes / "scene.json").read_text())

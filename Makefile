@@ -4,7 +4,6 @@
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
-SIMPLENERF := $(VENV)/bin/simplenerf
 SHARED ?= $(abspath ../shared)
 # LPIPS needs ImageNet AlexNet weights; the project's shared data has them (else: torch hub cache or a download).
 LPIPS_NPZ := $(SHARED)/data/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz
@@ -16,8 +15,9 @@ export SIMPLENERF_SHARED ?= $(SHARED)
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	# torch first and pinned: the CPU wheel; an unpinned resolve would pull CUDA packages.
-	$(PY) -m pip install -q torch==2.13.0
+	# torch first and pinned: the CPU wheel; an unpinned resolve would pull CUDA packages. OpenCV pinned too: it draws
+	# the demo scene's pictures, and its anti-aliased drawing changes between versions (so would the demo's scores).
+	$(PY) -m pip install -q torch==2.13.0 opencv-contrib-python-headless==5.1.0.95
 	$(PY) -m pip install -q -e '.[dev]'
 	# lpips only for its v0.1 linear heads; --no-deps because it requires torchvision.
 	$(PY) -m pip install -q --no-deps lpips==0.1.4
@@ -25,21 +25,14 @@ $(VENV)/.installed: pyproject.toml
 
 setup: $(VENV)/.installed
 
-# The demo: grid (K-Planes) SimpleNeRF and its DS-NeRF baseline on the built-in "objects" scene (configs/grid/).
-DEMO := --config configs/grid/demo.yaml
-DSNERF := --config configs/grid/demo_dsnerf.yaml
-
+# The demo (tools/demo.sh): grid (K-Planes) SimpleNeRF and its DS-NeRF baseline on the built-in "objects" scene
+# (configs/grid/), trained side by side, tested, SimpleNeRF's video, the metrics and one picture.
 demo: $(VENV)/.installed
-	$(SIMPLENERF) fit $(DEMO) --overwrite true
-	$(SIMPLENERF) test $(DEMO) --ckpt_path last
-	$(SIMPLENERF) fit $(DSNERF) --overwrite true
-	$(SIMPLENERF) test $(DSNERF) --ckpt_path last
-	$(SIMPLENERF) render-video $(DEMO) --ckpt runs/grid_demo/checkpoints/last.ckpt --scale 1.5 --frames 40 --rotations 1 --fps 15
-	@echo "Test metrics on the synthetic 'objects' scene (3 views, same budget), renders in runs/grid_demo*/test:"
-	@$(SIMPLENERF) results SimpleNeRF=runs/grid_demo DS-NeRF=runs/grid_demo_dsnerf --scores both --depth
-	@$(PY) -m benchmarks.demo_picture runs/grid_demo runs/grid_demo_dsnerf --out docs/images/demo.png
-	@echo "SimpleNeRF's spiral video ([RGB | depth]): runs/grid_demo/video_spiral.mp4"
-	@echo "One held-out frame of both models (photo | render | depths | exact depth): docs/images/demo.png"
+	PYTHON=$(PY) bash tools/demo.sh
+
+# Two pytest-xdist workers: the suite is mostly CLI subprocesses and small trainings, which fill two cores better
+# side by side (docs/testing.md). TEST_WORKERS=0 runs it in one process.
+TEST_WORKERS ?= 2
 
 test: $(VENV)/.installed
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS)

@@ -39,7 +39,14 @@ start=$SECONDS
 baseline_log=$RUNS/grid_demo_dsnerf.log
 OMP_NUM_THREADS=1 train_and_test demo_dsnerf >"$baseline_log" 2>&1 &
 baseline=$!
-trap 'kill "$baseline" 2>/dev/null || true' EXIT  # Ctrl-C or a failure here stops the baseline too
+stop_baseline() {  # its python first (a SIGTERM stops it at a step's end, checkpoint saved), then its subshell
+  pkill -TERM -P "$baseline" 2>/dev/null || true
+  kill "$baseline" 2>/dev/null || true
+}
+# Ctrl-C, a kill or a failure here stops the baseline too.
+trap stop_baseline EXIT
+trap 'exit 130' INT
+trap 'exit 143' TERM
 echo "[demo] DS-NeRF trains alongside; its output: $baseline_log"
 OMP_NUM_THREADS=1 train_and_test demo
 if ! wait "$baseline"; then

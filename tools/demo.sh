@@ -49,7 +49,10 @@ trap 'exit 130' INT
 trap 'exit 143' TERM
 echo "[demo] DS-NeRF trains alongside; its output: $baseline_log"
 OMP_NUM_THREADS=1 train_and_test demo
-if ! wait "$baseline"; then
+baseline_status=0
+wait "$baseline" || baseline_status=$?
+trap - EXIT  # it has ended: nothing to stop (and its PID may be reused)
+if [ "$baseline_status" -ne 0 ]; then
   tail -n 30 "$baseline_log" >&2
   echo "[demo] the DS-NeRF baseline failed; its output: $baseline_log" >&2
   exit 1

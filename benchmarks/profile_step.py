@@ -19,8 +19,8 @@ import sys
 import lightning as L
 import torch
 
+from benchmarks.speed import StepTimer, measuring_trainer, peak_rss_gib
 from simplenerf.commands.benchmark import emit, record_header, stdout_to_stderr, training_args
-from simplenerf.speed import StepTimer, measuring_trainer, peak_rss_gib
 
 
 def profile_training(

@@ -40,8 +40,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 def our_module(config: Path, scene_dir: Path, views: int, factor: int):
     """Our SimpleNeRF from the paper config, with the release-faithful switches (module docstring)."""
-    from simplenerf.lightning_cli import make_cli
     from simplenerf.method.reliability import PatchReprojectionMask
+    from simplenerf.run.cli import make_cli
 
     args = ["--config", str(config), "--data.init_args.scene_dir", str(scene_dir), "--data.init_args.n_views",
             str(views), "--data.init_args.factor", str(factor), "--model.rays_per_backward", "2048",
@@ -179,7 +179,7 @@ def main() -> int:
     # The learning-rate schedule: the release's decayer vs our ExponentialDecay.
     import lr_decayers.NeRFLearningRateDecayer01 as decayer
 
-    from simplenerf.optim import ExponentialDecay
+    from simplenerf.method.optim import ExponentialDecay
 
     theirs = decayer.NeRFLearningRateDecayer({"optimizer": {"lr_initial": 5e-4, "lr_decay": 250}})
     schedule = ExponentialDecay(torch.optim.Adam([torch.nn.Parameter(torch.zeros(1))], lr=5e-4))

@@ -21,9 +21,7 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader
 
-from simplenerf.commands import split_overrides
-from simplenerf.commands.benchmark import build, emit, measurement_parser, record_header, stdout_to_stderr
-from simplenerf.speed import (
+from benchmarks.speed import (
     cpu_seconds,
     cuda_peaks,
     device_name,
@@ -34,6 +32,8 @@ from simplenerf.speed import (
     spread,
     synchronize,
 )
+from simplenerf.commands import split_overrides
+from simplenerf.commands.benchmark import build, emit, measurement_parser, record_header, stdout_to_stderr
 
 
 class FrameTimer(L.Callback):

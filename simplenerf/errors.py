@@ -1,4 +1,4 @@
-"""Errors the command line reports as one clear line (`simplenerf.console.run_tool`), instead of a traceback."""
+"""Errors the command line reports as one clear line (`simplenerf.run.console.run_tool`), instead of a traceback."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Speed measurement (simplenerf.speed, `simplenerf benchmark`, benchmarks/): the counting formulas by hand, frame
+"""Speed measurement (benchmarks.speed, `simplenerf benchmark`, benchmarks/): the counting formulas by hand, frame
 cropping, the side-by-side table, and one short run of each measurement through the real CLI."""
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ from benchmarks.profile_step import main as profile_main
 from benchmarks.profile_step import matmul_time
 from benchmarks.render import crop_rows
 from benchmarks.render import main as render_main
+from benchmarks.speed import field_evaluations_per_ray, linear_macs, matmul_flop_per_ray
 from benchmarks.summarize import side_by_side_table
 from simplenerf.commands.benchmark import main as benchmark_main
 from simplenerf.commands.benchmark import training_args
-from simplenerf.speed import field_evaluations_per_ray, linear_macs, matmul_flop_per_ray
-from tests.test_cli import run_args
+from tests.run.test_cli import run_args
 
 
 class _Aug(nn.Module):

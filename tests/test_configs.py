@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from simplenerf.lightning_cli import SimpleNeRFCLI, make_cli
+from simplenerf.run.cli import SimpleNeRFCLI, make_cli
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 OVERRIDES = sorted((CONFIG_DIR / "overrides").rglob("*.yaml"))  # partial: added after a complete config

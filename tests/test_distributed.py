@@ -13,7 +13,7 @@ import yaml
 from simplenerf.data import datasets
 from simplenerf.data.llff import load_llff_scene, subset
 from tests.conftest import REPO
-from tests.test_cli import run, run_args, shrink
+from tests.run.test_cli import run, run_args, shrink
 
 
 def first_batches(views, rank: int, monkeypatch, n: int = 3) -> list:
@@ -55,7 +55,7 @@ def paper_shape(tmp: Path) -> list[str]:
         "model": {"nerf": shrink(llff["model"]["nerf"]), "augmentations": shrink(llff["model"]["augmentations"]),
                   "rays_per_backward": 24, "chunk": 4096},
         "data": data,
-        "trainer": {"callbacks": [{"class_path": "simplenerf.callbacks.LossWeightSchedule", "init_args": {
+        "trainer": {"callbacks": [{"class_path": "simplenerf.run.callbacks.LossWeightSchedule", "init_args": {
             "schedules": {name: [[0, 0.1]] for name in ("points", "views", "cfc")}}}]},
     }
     tmp.mkdir(parents=True, exist_ok=True)

@@ -16,20 +16,25 @@ PACKAGE = Path(__file__).resolve().parents[1] / "simplenerf"
 # strictly lower layer. A new part must be placed here (test_every_part_has_a_layer).
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("errors",),  # the errors the command line prints as one line
-    ("geometry", "metrics", "interrupts", "memory", "loggers"),  # leaves
-    ("console",),  # one-line errors and quiet output (a stop by a signal: interrupts)
+    ("geometry", "metrics"),  # leaves
     ("model", "sfm", "synthetic"),  # fields and rendering; structure from motion; the synthetic scene's generator
     ("data",),  # scene formats, splits, batches (sparse depth from sfm, the synthetic scene from synthetic)
-    ("method", "optim"),  # SimpleNeRF's augmentations, reliability masks and losses; the optimiser
-    ("module",),  # the LightningModule
+    ("method",),  # SimpleNeRF's augmentations, reliability masks, losses; the LightningModule and its optimiser
     ("viz",),  # pictures, videos, geometry export
     ("viewer",),  # the web viewer (its command: commands/view.py)
     ("evaluation",),  # the evaluation protocol
-    ("reporting", "checks", "resume", "run_lock", "callbacks"),  # tables of results; a run's checks and records
-    ("lightning_cli",),  # the LightningCLI
-    ("experiments", "speed"),  # sweeps of runs; seconds per step and peak memory
+    ("reporting",),  # tables of results
+    ("run",),  # the run machinery: the LightningCLI, checks, resume, lock, signals, console, loggers, callbacks
+    ("experiments",),  # sweeps of runs
     ("commands",),  # the command line: the verbs and their dispatcher
     ("__main__",),
+)
+# The run package's own parts (`simplenerf.run.<part>`), lowest first, under the same rule.
+RUN_LAYERS: tuple[tuple[str, ...], ...] = (
+    ("signals", "memory", "loggers"),  # SIGINT/SIGTERM; the allocator; W&B
+    ("console", "checks", "resume", "lock"),  # one-line errors (a stop by a signal); pre-flight; run records; the lock
+    ("callbacks",),  # every callback a run uses (RunRecord from resume)
+    ("cli",),  # the LightningCLI
 )
 # Parts that import no other part of the package at all.
 LEAVES = ("geometry", "metrics")
@@ -57,27 +62,32 @@ def imported_modules(file: Path) -> set[str]:
             base = node.module or ""
             if node.level:
                 base = ".".join([*package[: len(package) - node.level + 1], *([node.module] if node.module else [])])
-            # `from simplenerf import interrupts` imports the module simplenerf.interrupts.
+            # `from simplenerf.run import signals` imports the module simplenerf.run.signals.
             out |= {f"{base}.{a.name}" if is_module(f"{base}.{a.name}") else base for a in node.names}
     return {m for m in out if m.startswith("simplenerf.")}
 
 
-def import_edges() -> dict[tuple[str, str], list[str]]:
-    """(importing part, imported part) -> the files of the importing part that import it."""
+def import_edges(root: Path = PACKAGE) -> dict[tuple[str, str], list[str]]:
+    """(importing part, imported part) -> the files of the importing part that import it; the parts of `root` (the
+    package, or a subpackage such as run/)."""
+    depth = len(root.relative_to(PACKAGE.parent).parts)
+    prefix = ".".join(root.relative_to(PACKAGE.parent).parts) + "."
     edges = defaultdict(list)
-    for file in sorted(PACKAGE.rglob("*.py")):
-        if file.parent == PACKAGE and file.name == "__init__.py":
+    for file in sorted(root.rglob("*.py")):
+        if file.parent == root and file.name == "__init__.py":
             continue  # the package's own docstring and version
-        source = part_of(".".join(file.relative_to(PACKAGE.parent).with_suffix("").parts))
+        source = ".".join(file.relative_to(PACKAGE.parent).with_suffix("").parts).split(".")[depth]
         for module in imported_modules(file):
-            target = part_of(module)
+            if not module.startswith(prefix):
+                continue
+            target = module.split(".")[depth]
             if target != source:
                 edges[(source, target)].append(str(file.relative_to(PACKAGE.parent)))
     return dict(edges)
 
 
-def all_parts() -> set[str]:
-    return {p.stem if p.is_file() else p.name for p in PACKAGE.iterdir()
+def all_parts(root: Path = PACKAGE) -> set[str]:
+    return {p.stem if p.is_file() else p.name for p in root.iterdir()
             if (p.suffix == ".py" and p.name != "__init__.py") or (p / "__init__.py").is_file()}
 
 
@@ -90,6 +100,15 @@ def test_every_part_has_a_layer():
 def test_imports_go_down_the_layers_only():
     layer = {part: i for i, parts in enumerate(LAYERS) for part in parts}
     upward = {f"{a} -> {b}": files for (a, b), files in import_edges().items() if layer[b] >= layer[a]}
+    assert upward == {}
+
+
+def test_the_run_package_has_layers_too():
+    run = PACKAGE / "run"
+    placed = [part for layer in RUN_LAYERS for part in layer]
+    assert sorted(placed) == sorted(all_parts(run))
+    layer = {part: i for i, parts in enumerate(RUN_LAYERS) for part in parts}
+    upward = {f"{a} -> {b}": files for (a, b), files in import_edges(run).items() if layer[b] >= layer[a]}
     assert upward == {}
 
 
@@ -122,13 +141,13 @@ def test_the_leaves_import_no_other_part():
 def test_the_graph_sees_imports_inside_functions():
     """The test above would pass vacuously if imports were missed: the verbs' lazy imports are edges."""
     edges = import_edges()
-    assert ("commands", "lightning_cli") in edges  # `simplenerf benchmark`: inside its main()
+    assert "simplenerf/commands/benchmark.py" in edges[("commands", "run")]  # `simplenerf benchmark`: inside build()
     assert set(edges[("commands", "experiments")]) == {"simplenerf/commands/sweep.py"}  # also inside a function
-    assert ("console", "interrupts") in edges  # `from simplenerf import interrupts`
+    assert ("console", "signals") in import_edges(PACKAGE / "run")  # `from simplenerf.run import signals`
 
 
 def test_importing_the_module_loads_neither_pycolmap_nor_lpips():
-    code = "import sys, simplenerf.module; print(sorted({'pycolmap', 'lpips'} & set(sys.modules)))"
+    code = "import sys, simplenerf.method.module; print(sorted({'pycolmap', 'lpips'} & set(sys.modules)))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 

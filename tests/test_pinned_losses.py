@@ -25,7 +25,7 @@ TERMS = ("loss", "loss_color", "loss_sparse_depth", "loss_points", "loss_views",
 NO_WARMUP = """
 trainer:
   callbacks:
-    - class_path: simplenerf.callbacks.LossWeightSchedule
+    - class_path: simplenerf.run.callbacks.LossWeightSchedule
       init_args:
         schedules:
           points: [[0, 0.1]]
@@ -45,7 +45,7 @@ class RecordLosses(L.Callback):
 
 def demo_losses(workdir: Path, steps: int = STEPS) -> list[dict[str, float]]:
     """Per-step losses of `steps` fp32 steps of configs/demo.yaml with seed 0, data and outputs under `workdir`."""
-    from simplenerf.lightning_cli import make_cli
+    from simplenerf.run.cli import make_cli
     from simplenerf.sfm import sparse_depth
 
     # COLMAP's multi-threaded SfM differs from run to run in the last bits; one thread is reproducible.

@@ -4,7 +4,7 @@ For one scene and view count, the release's own loader (`data_loaders/NerfLlffDa
 `RealEstateDataLoader01.py`) and preprocessor (`data_preprocessors/DataPreprocessor01.py`, modes train / validation
 and its test-time `create_test_data`) run on the release's layout of the scene (`layouts.py`), configured by the
 release's own published config (`NerfLlffTrainerTester01.py` / `RealEstateTrainerTester01.py`, demo1a / 1b / 1c for
-2 / 3 / 4 views, captured at run time); ours runs through `simplenerf.lightning_cli.make_cli` with configs/llff.yaml or
+2 / 3 / 4 views, captured at run time); ours runs through `simplenerf.run.cli.make_cli` with configs/llff.yaml or
 configs/realestate.yaml. Rows compare:
 1. train / validation / test frame numbers (exact);
 2. intrinsics, c2w after recentring and scaling, near / far, bounds and scale (and the authors' committed
@@ -141,7 +141,7 @@ def patched_sparse_depth(provide):
 
 def our_datamodule(kind: str, scene_dir: Path, n_views: int, factor: int, work_dir: Path):
     """Our data module through the real CLI and config (configs/llff.yaml or configs/realestate.yaml)."""
-    from simplenerf.lightning_cli import make_cli
+    from simplenerf.run.cli import make_cli
 
     config = REPO_ROOT / ("configs/llff.yaml" if kind == "llff" else "configs/realestate.yaml")
     args = ["--config", str(config), "--data.init_args.scene_dir", str(scene_dir),

@@ -5,7 +5,7 @@ arguments after the verb, the Lightning verbs with the verb too, LightningCLI's 
 --help` shows. A verb's module parses its arguments with a `CommandParser` whose description (the module docstring)
 has an example. Registering a verb is one line here, e.g. `"view": Verb("simplenerf.commands.view", "...")`; the
 module is imported only when its verb runs, so `simplenerf --help` and the verbs that need no torch start at once.
-Every verb runs under `simplenerf.console.run_tool`: bad input ends with one `simplenerf: error:` line and exit
+Every verb runs under `simplenerf.run.console.run_tool`: bad input ends with one `simplenerf: error:` line and exit
 status 2, a signal with one line and 128 + its number.
 """
 
@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NoReturn
 
-from simplenerf.console import PROG, run_tool
+from simplenerf.run.console import PROG, run_tool
 
 
 @dataclass(frozen=True)
@@ -29,9 +29,9 @@ class Verb:
     summary: str  # one line of `simplenerf --help`
 
 
-LIGHTNING_VERBS = ("fit", "validate", "test", "predict")  # LightningCLI's subcommands (simplenerf.lightning_cli)
+LIGHTNING_VERBS = ("fit", "validate", "test", "predict")  # LightningCLI's subcommands (simplenerf.run.cli)
 
-LIGHTNING = "simplenerf.lightning_cli:lightning_main"
+LIGHTNING = "simplenerf.run.cli:lightning_main"
 VERBS: dict[str, Verb] = {
     "fit": Verb(LIGHTNING, "train a run from a config (resume it with --ckpt_path last)"),
     "validate": Verb(LIGHTNING, "score a run's validation view"),
@@ -62,7 +62,7 @@ DESCRIPTION = (
 class CommandParser(argparse.ArgumentParser):
     """A verb's parser (`prog` "simplenerf <verb>"): `--help` shows its module's docstring (a description and an
     example); a bad option ends with one `simplenerf: error:` line and a hint, exit status 2, as for the Lightning
-    verbs (`simplenerf.console.parser_error_line`)."""
+    verbs (`simplenerf.run.console.parser_error_line`)."""
 
     def __init__(self, verb: str, doc: str | None, prog: str | None = None) -> None:
         super().__init__(prog=prog or f"{PROG} {verb}", description=doc,

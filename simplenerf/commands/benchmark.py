@@ -1,5 +1,5 @@
 """Seconds per training step and peak memory of a config on this machine: times N training iterations after W
-warm-up iterations and prints ONE JSON line (simplenerf.speed), e.g.
+warm-up iterations and prints ONE JSON line (benchmarks.speed), e.g.
 
     simplenerf benchmark --config configs/llff.yaml --steps 3 --warmup 2 --rays 256 --precision 32-true \
         -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.sparse_rays_per_batch 256
@@ -16,15 +16,33 @@ benchmarks/ in the repository.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 import torch
 from torch import nn
 
 from simplenerf.commands import CommandParser, split_overrides
-from simplenerf.speed import set_tf32, time_training
+from simplenerf.errors import SimpleNeRFError
+
+
+def speed():
+    """`benchmarks.speed`, the measurement: it lives in the repository's benchmarks/, not in the installed package, and
+    is found beside the package (a checkout, or an editable install) when the working folder is elsewhere."""
+    try:
+        return importlib.import_module("benchmarks.speed")
+    except ModuleNotFoundError as e:
+        if e.name not in ("benchmarks", "benchmarks.speed"):
+            raise
+    root = Path(__file__).resolve().parents[2]
+    if not (root / "benchmarks" / "speed.py").is_file():
+        raise SimpleNeRFError(f"benchmark: the repository's benchmarks/speed.py is not beside the package ({root}); "
+                              "run simplenerf benchmark from a checkout of the repository")
+    sys.path.insert(0, str(root))
+    return importlib.import_module("benchmarks.speed")
 
 
 def measurement_parser(doc: str | None, prog: str | None = None) -> CommandParser:
@@ -42,9 +60,9 @@ def measurement_parser(doc: str | None, prog: str | None = None) -> CommandParse
 def build(args: argparse.Namespace, overrides: list[str]):
     """The CLI (model, data module) of the parsed measurement `args` and the CLI `overrides`, seed 0 first (a run's
     rays are reproducible; an override still wins), without a logger."""
-    from simplenerf.lightning_cli import make_cli
+    from simplenerf.run.cli import make_cli
 
-    set_tf32(args.tf32)
+    speed().set_tf32(args.tf32)
     configs = [a for c in args.config for a in ("--config", c)]
     return make_cli(["--seed_everything", "0", *configs, "--trainer.logger", "false", *overrides], run=False)
 
@@ -91,7 +109,8 @@ def training_args(argv: Sequence[str], doc: str | None, extra: dict[str, tuple[i
 def main(argv: Sequence[str]) -> dict:
     args, overrides, cli = training_args(argv, __doc__, {"steps": (3, "timed iterations")})
     with stdout_to_stderr():
-        result = time_training(cli.model, cli.datamodule, args.steps, args.warmup, args.precision, args.accelerator)
+        result = speed().time_training(cli.model, cli.datamodule, args.steps, args.warmup, args.precision,
+                                       args.accelerator)
     record = {**record_header("train_step", args, overrides), "steps": args.steps, "warmup": args.warmup, **result}
     emit(record)
     return record

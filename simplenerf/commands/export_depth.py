@@ -17,7 +17,7 @@ import torch
 
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.reference_depth import export_reference_depth
-from simplenerf.lightning_cli import load_for_tool
+from simplenerf.run.cli import load_for_tool
 
 
 def main(argv: Sequence[str]) -> None:

@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 
 from simplenerf.commands import CommandParser, split_overrides
-from simplenerf.lightning_cli import load_for_tool
+from simplenerf.run.cli import load_for_tool
 from simplenerf.viz.export import export_geometry
 
 

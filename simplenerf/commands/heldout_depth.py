@@ -19,7 +19,7 @@ from pathlib import Path
 
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.heldout_depth import heldout_depth_error, heldout_observations
-from simplenerf.lightning_cli import load_for_tool
+from simplenerf.run.cli import load_for_tool
 
 
 def main(argv: Sequence[str]) -> None:

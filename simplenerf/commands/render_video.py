@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 from simplenerf.commands import CommandParser, split_overrides
-from simplenerf.lightning_cli import load_for_tool
+from simplenerf.run.cli import load_for_tool
 from simplenerf.viz.camera_path import read_camera_path
 from simplenerf.viz.video import render_camera_path_video, render_scene_video
 

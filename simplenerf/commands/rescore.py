@@ -21,8 +21,8 @@ from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.errors import DataError
 from simplenerf.evaluation.rescore import comparison_table, find_test_folder, rescore_run
 from simplenerf.evaluation.visibility import MIN_VIEWS
-from simplenerf.lightning_cli import load_for_tool
 from simplenerf.metrics.lpips import LPIPS
+from simplenerf.run.cli import load_for_tool
 
 # Keys of a `test` config that describe that run, not the model or data, and that a config without subcommand rejects.
 RUN_ONLY_KEYS = ("ckpt_path", "verbose", "weights_only")

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 from simplenerf.commands import CommandParser
 from simplenerf.errors import DataError
-from simplenerf.loggers import logged_history
+from simplenerf.run.loggers import logged_history
 
 
 def history_table(rows: list[dict], pattern: str) -> tuple[list[str], list[list]]:

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from simplenerf.errors import SimpleNeRFError
-from simplenerf.lightning_cli import make_cli
+from simplenerf.run.cli import make_cli
 
 
 def main(argv: Sequence[str]) -> None:

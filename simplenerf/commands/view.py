@@ -17,11 +17,11 @@ from pathlib import Path
 
 import torch
 
-from simplenerf.checks import checkpoints_newest_first
 from simplenerf.commands import CommandParser, split_overrides
-from simplenerf.console import HeldLogs
 from simplenerf.errors import DataError, RunFolderError
-from simplenerf.lightning_cli import load_for_tool
+from simplenerf.run.checks import checkpoints_newest_first
+from simplenerf.run.cli import load_for_tool
+from simplenerf.run.console import HeldLogs
 from simplenerf.viewer.server import Viewer, check_port
 
 

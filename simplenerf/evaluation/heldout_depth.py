@@ -17,7 +17,7 @@ from simplenerf.sfm.known_poses import SparseDepth
 from simplenerf.sfm.sparse_depth import load_or_compute_sparse_depth
 
 if TYPE_CHECKING:
-    from simplenerf.module import SimpleNeRF
+    from simplenerf.method.module import SimpleNeRF
 
 
 def heldout_observations(scene: Scene, cache_dir: str, scene_key: str) -> dict[int, SparseDepth]:

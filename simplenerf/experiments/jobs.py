@@ -1,7 +1,7 @@
 """What one job of a sweep does (`run_unit`), in the process the executor gives it: submitit's job process on SLURM
 or on this machine, or the sweep's own process (debug).
 
-The stages run the package's own entry points in-process (`simplenerf.lightning_cli.make_cli` for fit / test, the verbs'
+The stages run the package's own entry points in-process (`simplenerf.run.cli.make_cli` for fit / test, the verbs'
 functions for depth export and masks), so on SLURM the fit is the job's process itself and receives SLURM's signal:
 Lightning's `SLURMEnvironment(auto_requeue=True)` saves `hpc_ckpt_N.ckpt` on SIGUSR1 (sbatch `--signal=USR1@90`)
 and requeues the job with `scontrol requeue`; the requeued job runs this again, in the same run folder and with the
@@ -50,7 +50,7 @@ class _LastLine(io.TextIOBase):
 
 def resume_checkpoint(folder: Path) -> str:
     """`hpc` when Lightning's requeue checkpoint (`<run>/hpc_ckpt_N.ckpt`) is newer than `checkpoints/last.ckpt`, else
-    `last` (from the start when there is none: `simplenerf.checks.resolve_checkpoint`)."""
+    `last` (from the start when there is none: `simplenerf.run.checks.resolve_checkpoint`)."""
     hpc = sorted(Path(folder).glob("hpc_ckpt_*.ckpt"), key=lambda p: p.stat().st_mtime)
     last = Path(folder) / "checkpoints" / "last.ckpt"
     if hpc and (not last.is_file() or hpc[-1].stat().st_mtime > last.stat().st_mtime):
@@ -60,8 +60,8 @@ def resume_checkpoint(folder: Path) -> str:
 
 def run_cli(args: list[str]):
     """The CLI on `args` in this process; JobFailed with its one error line if it stops on an error."""
-    from simplenerf.console import quiet_libraries
-    from simplenerf.lightning_cli import make_cli
+    from simplenerf.run.cli import make_cli
+    from simplenerf.run.console import quiet_libraries
 
     quiet_libraries()
     tee = _LastLine(sys.stderr)
@@ -112,7 +112,7 @@ def _device() -> str:
 
 def _depth(unit: Unit) -> None:
     from simplenerf.evaluation.reference_depth import export_reference_depth
-    from simplenerf.lightning_cli import load_for_tool
+    from simplenerf.run.cli import load_for_tool
 
     ckpt = Path(unit.folder) / "checkpoints" / "last.ckpt"
     try:
@@ -128,7 +128,7 @@ def _depth(unit: Unit) -> None:
 
 def _masks(unit: Unit) -> None:
     from simplenerf.evaluation.evaluator import export_visibility_masks
-    from simplenerf.lightning_cli import load_for_tool
+    from simplenerf.run.cli import load_for_tool
 
     try:
         cli = load_for_tool([], unit.args)

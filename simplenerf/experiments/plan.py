@@ -106,8 +106,8 @@ def _drop(tree: dict, dotted: str) -> None:
 def resolved_config(args: list[str], entry: str) -> dict:
     """The config `args` resolve to (parsed by the real CLI, nothing built), without its paths and logging.
     SweepError naming `entry` with the CLI's error line if it does not parse."""
-    from simplenerf.console import quiet_libraries
-    from simplenerf.lightning_cli import SimpleNeRFCLI, make_cli
+    from simplenerf.run.cli import SimpleNeRFCLI, make_cli
+    from simplenerf.run.console import quiet_libraries
 
     class ParseOnly(SimpleNeRFCLI):
         def instantiate_classes(self) -> None:

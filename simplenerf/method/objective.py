@@ -2,11 +2,11 @@
 each field's own regulariser (e.g. a grid's total variation): L = sum over terms of term.weight * term value.
 
 A term has a `name` (its value is logged as `train/loss_<name>`, its weight as `train_params/<name>`, and a
-`callbacks.LossWeightSchedule` sets its weight by that name), the rays it `reads` (the batch's random rays, its
+`run.callbacks.LossWeightSchedule` sets its weight by that name), the rays it `reads` (the batch's random rays, its
 sparse-depth rays, or none: a regulariser, evaluated once per step) and a `weight`. A term whose weight is 0 is not
 computed (during the warm-up the masked terms cost nothing, not even their masks).
 
-A ray term's value is a mean over the rays it reads, so a batch may be rendered in parts (`module.SimpleNeRF`): the
+A ray term's value is a mean over the rays it reads, so a batch may be rendered in parts (`method.module.SimpleNeRF`): the
 parts' values, each weighted by its share of the batch's rays of that kind, sum to the whole batch's value.
 """
 

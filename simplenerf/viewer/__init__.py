@@ -2,5 +2,6 @@
 
 `camera` turns the browser's camera into rays, `modes` renders what the user picked (RGB, depths, masks), `progressive`
 refines a render while the camera rests, `scene` draws the cameras and points, `server` ties them to a viser server,
-`command` is `simplenerf view RUN`, `callback` is `fit --viewer true`. docs/viewer.md is the user's guide.
+`simplenerf.commands.view` is `simplenerf view RUN`, `simplenerf.run.callbacks.viewer` is `fit --viewer true`.
+docs/viewer.md is the user's guide.
 """

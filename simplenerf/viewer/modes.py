@@ -26,7 +26,7 @@ import torch
 
 from simplenerf.geometry.rays import RayBundle
 from simplenerf.geometry.views import Views
-from simplenerf.module import SimpleNeRF
+from simplenerf.method.module import SimpleNeRF
 from simplenerf.viz.pictures import colorize_depth, grey_picture, to_uint8
 
 ModeKind = Literal["rgb", "depth", "accumulation", "coarse_fine", "augmented_depth", "mask"]

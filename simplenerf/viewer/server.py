@@ -26,7 +26,7 @@ except ModuleNotFoundError:  # an install without the extra: one line, not a tra
 
 from simplenerf.data.datasets import SparseDepthPool
 from simplenerf.data.scene import Scene
-from simplenerf.module import SimpleNeRF
+from simplenerf.method.module import SimpleNeRF
 from simplenerf.viewer.camera import (
     ViewerCamera,
     camera_from_viser,

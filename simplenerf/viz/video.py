@@ -18,7 +18,6 @@ import av
 import lightning as L
 import numpy as np
 import torch
-from jsonargparse.typing import NonNegativeInt, PositiveFloat
 from tqdm import tqdm
 
 from simplenerf.data.scene import SceneDataModule
@@ -219,37 +218,3 @@ def render_camera_path_video(
     written, used_range = render_video(model.nerf, path.c2w, intrinsics, height, width, datamodule.near,
                                        model.hparams.chunk, out_path, path.fps, depth_range)
     return written, len(path.c2w), width, height, used_range
-
-
-class TrainingVideo(L.Callback):
-    """At the end of `fit`, the video of the trained model ([RGB | depth] along the scene's camera path, as
-    `simplenerf render-video`) in `<trainer.default_root_dir>/video_<path>.mp4`, logged to every logger that takes
-    videos (W&B: the media panel `video/<path>`). Rendered by global rank 0; off unless `frames` > 0."""
-
-    def __init__(self, frames: NonNegativeInt = 0, rotations: float = 2, scale: PositiveFloat = 1.0,
-                 fps: float = 30, trajectory: TrajectoryKind | None = None) -> None:
-        """
-        Args:
-            frames: frames of the spiral (the recorded path has its own); 0: no video.
-            rotations: turns of the spiral.
-            scale: render at this times the data's resolution (0.25: a quarter; a full-resolution video on a CPU
-                takes long).
-            fps: frames per second.
-            trajectory: spiral or recorded; null: the scene's `camera_path` (RealEstate: recorded, else spiral).
-        """
-        self.frames, self.rotations, self.scale, self.fps = frames, rotations, scale, fps
-        self.trajectory = trajectory
-
-    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        if self.frames <= 0 or not trainer.is_global_zero:
-            return
-        kind = self.trajectory or trainer.datamodule.scene.camera_path
-        out = Path(trainer.default_root_dir) / f"video_{kind}.mp4"
-        written, n, width, height, kind, _ = render_scene_video(
-            pl_module, trainer.datamodule, out, kind, self.frames, self.rotations, self.scale, self.fps
-        )
-        for logger in trainer.loggers:
-            log_video = getattr(logger, "log_video", None)
-            if log_video is not None:
-                log_video(key=f"video/{kind}", videos=[str(written)], step=trainer.global_step, format=["mp4"])
-        print(f"video: {written} ({n} frames of {2 * width}x{height}, {kind})", flush=True)

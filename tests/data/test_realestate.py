@@ -20,7 +20,7 @@ from simplenerf.data.realestate import (
 from simplenerf.errors import DataError
 from simplenerf.geometry.rays import pixel_rays, project
 from tests.conftest import require_shared
-from tests.test_cli import SMALL, run, tiny_model
+from tests.run.test_cli import SMALL, run, tiny_model
 
 SCENE = "data/realestate10k/000c3ab189999a83"
 

@@ -33,7 +33,7 @@ from simplenerf.metrics.scores import PSNR_CAP
 from simplenerf.model.nerf import FrameRender
 from tests.conftest import REPO, shared_dir
 from tests.metrics.test_scores import assert_perfect_scores, lpips_weights
-from tests.test_cli import run, run_args
+from tests.run.test_cli import run, run_args
 
 SUMMARY_KEYS = ["scene", "n_views", "frames", *ALL_METRICS, "checkpoint", "git_commit", "config"]
 

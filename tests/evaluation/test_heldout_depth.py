@@ -7,7 +7,7 @@ import torch
 from simplenerf.data.synthetic import SyntheticDataModule
 from simplenerf.evaluation.heldout_depth import heldout_depth_error
 from simplenerf.sfm.known_poses import SparseDepth
-from tests.test_module import simplenerf_module
+from tests.method.test_module import simplenerf_module
 
 
 def test_every_rendered_depth_is_scored_at_the_keypoints(tmp_path):

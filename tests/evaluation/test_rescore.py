@@ -92,7 +92,7 @@ def test_comparison_table_and_folder_errors(tested, tmp_path):
 
 def test_the_tool_rescores_a_cli_run(tmp_path):
     """`fit` 1 step and `test` through the CLI, then the tool: its new scores equal the test's own (same code)."""
-    from tests.test_cli import run, run_args
+    from tests.run.test_cli import run, run_args
 
     run("fit", *run_args(tmp_path), "--trainer.max_steps", "1", "--data.init_args.sparse_rays_per_batch", "0")
     run("test", *run_args(tmp_path), "--ckpt_path", "last", "--evaluation.lpips", "false")

@@ -10,7 +10,7 @@ from lightning.pytorch import Callback
 
 from simplenerf.synthetic.generate import make_synthetic_scene
 from tests.conftest import REPO
-from tests.test_cli import shrink
+from tests.run.test_cli import shrink
 
 STEPS = 4
 
@@ -26,9 +26,9 @@ def tiny_configs(tmp: Path, steps: int = STEPS) -> dict[str, Path]:
             "init_args": {"scene_dir": "unset", "factor": 1, "n_views": 2, "rays_per_batch": 64,
                           "sparse_rays_per_batch": 0}}
     trainer = {"max_steps": steps, "val_check_interval": 1000, "callbacks": [{
-        "class_path": "simplenerf.callbacks.LossWeightSchedule",
+        "class_path": "simplenerf.run.callbacks.LossWeightSchedule",
         "init_args": {"schedules": {k: [[0, 0.0], [1, 0.1]] for k in ("points", "views", "cfc")}}}],
-        "logger": {"class_path": "simplenerf.loggers.WandbLogger", "init_args": {"save_dir": "unset"}}}
+        "logger": {"class_path": "simplenerf.run.loggers.WandbLogger", "init_args": {"save_dir": "unset"}}}
     simplenerf = {"model": model, "data": data, "trainer": trainer, "checkpoint": {"every_n_train_steps": 2},
                   "evaluation": {"lpips": False}}
     dsnerf = {"model": {"augmentations": [], "objective": {"coarse_fine_mask": None}}, "trainer": {"callbacks": []}}
@@ -101,7 +101,7 @@ def callbacks_override(tmp: Path, name: str, callback: str, step: int, keep_warm
     """A config override whose trainer.callbacks (a list: replaced whole) are the tiny warm-up plus `callback`."""
     callbacks = []
     if keep_warmup:
-        callbacks.append({"class_path": "simplenerf.callbacks.LossWeightSchedule",
+        callbacks.append({"class_path": "simplenerf.run.callbacks.LossWeightSchedule",
                           "init_args": {"schedules": {k: [[0, 0.0], [1, 0.1]] for k in ("points", "views", "cfc")}}})
     callbacks.append({"class_path": f"tests.experiments.sweep_fixtures.{callback}",
                       "init_args": {"step": step, "marker": str(tmp / f"{name}.marker")}})

@@ -5,16 +5,16 @@ import math
 import pytest
 import torch
 
-from simplenerf.callbacks import LossWeightSchedule
 from simplenerf.data.batches import RayBatch
 from simplenerf.geometry.rays import make_rays
 from simplenerf.method.augmentations import Augmentation
 from simplenerf.method.losses import bin_sizes, mass_concentration_loss
+from simplenerf.method.module import SimpleNeRF
 from simplenerf.method.objective import Objective, RenderedRays, part_loss
 from simplenerf.method.reliability import PatchReprojectionMask
 from simplenerf.model.grid import KPlanesField
 from simplenerf.model.nerf import NeRF
-from simplenerf.module import SimpleNeRF
+from simplenerf.run.callbacks import LossWeightSchedule
 
 
 def entr(x: float) -> float:

@@ -50,7 +50,7 @@ def scene():
 
 def paper_step() -> dict[str, float]:
     """The logged terms and mask fractions of one training step, and per-model gradient norms."""
-    from simplenerf.lightning_cli import make_cli
+    from simplenerf.run.cli import make_cli
 
     torch.manual_seed(0)
     args = ["--config", str(REPO / "configs/llff.yaml"), "--data.init_args.scene_dir", str(REPO),

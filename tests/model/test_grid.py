@@ -14,7 +14,7 @@ from simplenerf.model.grid import KPlanesField, plane_tv, sample_plane, trunc_ex
 from simplenerf.model.samples import Samples
 from tests.conftest import REPO
 from tests.data.test_realestate import write_clip
-from tests.test_cli import run
+from tests.run.test_cli import run
 
 
 def node(index: int, nodes: int) -> float:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.test_cli import run, run_args
+from tests.run.test_cli import run, run_args
 
 
 @pytest.fixture(scope="session")

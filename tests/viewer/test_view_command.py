@@ -5,7 +5,7 @@ import socket
 
 import torch
 
-from tests.test_cli import run, run_args
+from tests.run.test_cli import run, run_args
 
 
 def error_line(proc) -> str:

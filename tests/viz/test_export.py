@@ -105,8 +105,8 @@ def test_export_of_a_tiny_model(synthetic_scene, tmp_path) -> None:
 
 
 def test_export_geometry_verb_on_the_demo_config(tmp_path) -> None:
-    from simplenerf.lightning_cli import make_cli
-    from tests.test_cli import run_args
+    from simplenerf.run.cli import make_cli
+    from tests.run.test_cli import run_args
 
     args = run_args(tmp_path)
     cli = make_cli([*args, "--trainer.logger", "false"], run=False)  # an untrained model: its state dict will do

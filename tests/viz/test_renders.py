@@ -7,9 +7,9 @@ import torch
 
 from simplenerf.metrics.scores import psnr
 from simplenerf.model.nerf import FrameRender
+from simplenerf.run.callbacks import ValidationRenders
 from simplenerf.viz.renders import (
     KINDS,
-    ValidationRenders,
     colorize_error,
     error_map,
     grey_picture,

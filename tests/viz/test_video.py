@@ -126,8 +126,8 @@ def run_tool(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_render_video_verb_on_the_demo_config(tmp_path):
-    from simplenerf.lightning_cli import make_cli
-    from tests.test_cli import run_args
+    from simplenerf.run.cli import make_cli
+    from tests.run.test_cli import run_args
 
     args = run_args(tmp_path)
     cli = make_cli([*args, "--trainer.logger", "false"], run=False)  # an untrained model: its state dict will do

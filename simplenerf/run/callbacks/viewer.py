@@ -14,7 +14,7 @@ from pathlib import Path
 import lightning as L
 
 from simplenerf.data.scene import SceneDataModule
-from simplenerf.module import SimpleNeRF
+from simplenerf.method.module import SimpleNeRF
 from simplenerf.viewer.server import Viewer, check_port
 
 

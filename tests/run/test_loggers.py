@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from simplenerf.loggers import WandbLogger
+from simplenerf.run.loggers import WandbLogger
 
 
 def test_the_run_folder_is_the_default_save_dir(tmp_path):

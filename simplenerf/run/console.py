@@ -14,8 +14,8 @@ import warnings
 from collections.abc import Callable
 from typing import Any
 
-from simplenerf import interrupts
 from simplenerf.errors import SimpleNeRFError, Stopped
+from simplenerf.run import signals
 
 PROG = "simplenerf"
 
@@ -197,9 +197,9 @@ def _input_errors() -> tuple[type[BaseException], ...]:
 
 def run_tool(main_function: Callable[[], None], name: str = PROG) -> None:
     """Runs a command's main; bad input ends with one `<name>: error:` line and exit status 2 (a diverged training:
-    1); a SIGINT or SIGTERM with one line and 128 + the signal's number (`simplenerf.interrupts`; docs/running.md)."""
+    1); a SIGINT or SIGTERM with one line and 128 + the signal's number (`simplenerf.run.signals`; docs/running.md)."""
     quiet_libraries()
-    interrupts.install()
+    signals.install()
     try:
         main_function()
     except (KeyboardInterrupt, SystemExit, Exception) as e:
@@ -208,8 +208,8 @@ def run_tool(main_function: Callable[[], None], name: str = PROG) -> None:
             sys.exit(e.exit_status if isinstance(e, SimpleNeRFError) else 2)
         # After a signal, any error is its consequence: a library that was running native code (pycolmap's SfM) may
         # turn the pending interrupt into its own exception. Without a signal, only KeyboardInterrupt is a stop.
-        if interrupts.received is None and not isinstance(e, KeyboardInterrupt):
+        if signals.received is None and not isinstance(e, KeyboardInterrupt):
             raise
-        signum = interrupts.received or (e.signum if isinstance(e, Stopped) else None) or signal.SIGINT
-        print(f"{name}: error: stopped by {interrupts.name(signum)} before it finished", file=sys.stderr)
-        sys.exit(interrupts.exit_status(signum))
+        signum = signals.received or (e.signum if isinstance(e, Stopped) else None) or signal.SIGINT
+        print(f"{name}: error: stopped by {signals.name(signum)} before it finished", file=sys.stderr)
+        sys.exit(signals.exit_status(signum))

@@ -9,7 +9,7 @@ needs besides Lightning's own state (weights, optimiser, LR schedule, loop count
 
 The random-ray order continues too: `data.datasets.RandomRays` skips the batches the run has already drawn
 (`SceneDataModule.train_dataloader` reads the resumed step). The loss-weight schedule is a function of the step
-(`callbacks.LossWeightSchedule`), so it continues by itself.
+(`run.callbacks.LossWeightSchedule`), so it continues by itself.
 """
 
 from __future__ import annotations
@@ -37,6 +37,34 @@ IGNORED_DATA = ("root", "scene_dir", "sparse_depth_cache", "num_workers", "refer
 IGNORED_MODEL = ("chunk", "rays_per_backward")
 # What `test` checks: the scored scene and its split are the trained ones.
 TEST_KEYS = ("scene", "train_frames", "data_class")
+
+
+# Modules whose classes moved (issue 37: the run machinery into simplenerf.run, the LightningModule and its optimiser
+# into simplenerf.method, the validation and video callbacks into simplenerf.run.callbacks): a run's config.yaml or
+# checkpoint written before names the old class paths, read as the new ones.
+MOVED_CLASS_PATHS = {
+    "simplenerf.callbacks.": "simplenerf.run.callbacks.",
+    "simplenerf.loggers.": "simplenerf.run.loggers.",
+    "simplenerf.optim.": "simplenerf.method.optim.",
+    "simplenerf.module.": "simplenerf.method.module.",
+    "simplenerf.viz.renders.ValidationRenders": "simplenerf.run.callbacks.ValidationRenders",
+    "simplenerf.viz.video.TrainingVideo": "simplenerf.run.callbacks.TrainingVideo",
+    "simplenerf.viewer.callback.": "simplenerf.run.callbacks.viewer.",
+}
+
+
+def current_class_paths(value: Any) -> Any:
+    """`value` (a config or recorded settings: dicts, lists, strings) with every moved class path (MOVED_CLASS_PATHS)
+    replaced by where the class lives now; everything else as it is."""
+    if isinstance(value, dict):
+        return {k: current_class_paths(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [current_class_paths(v) for v in value]
+    if isinstance(value, str):
+        for old, new in MOVED_CLASS_PATHS.items():
+            if value.startswith(old) and "." not in value[len(old):].strip("."):
+                return new + value[len(old):]
+    return value
 
 
 def _plain(value: Any) -> Any:
@@ -186,9 +214,10 @@ def set_rng_state(states: dict[str, Any]) -> None:
 
 
 def recorded_settings(checkpoint: dict) -> dict[str, Any] | None:
-    """The run settings a checkpoint was trained with (None: written before they were recorded)."""
+    """The run settings a checkpoint was trained with (None: written before they were recorded), with moved class
+    paths read as the current ones."""
     record = checkpoint.get(RECORD_KEY)
-    return record.get("settings") if isinstance(record, dict) else None
+    return current_class_paths(record.get("settings")) if isinstance(record, dict) else None
 
 
 class RunRecord(L.Callback):

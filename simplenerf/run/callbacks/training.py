@@ -14,10 +14,10 @@ from jsonargparse.typing import PositiveInt
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, RichProgressBar
 
 from simplenerf.errors import SimpleNeRFError, TrainingDiverged
-from simplenerf.interrupts import Interrupted
+from simplenerf.run.signals import Interrupted
 
 if TYPE_CHECKING:
-    from simplenerf.module import SimpleNeRF
+    from simplenerf.method.module import SimpleNeRF
 
 
 class RaysPerSecond(L.Callback):
@@ -62,7 +62,7 @@ class LearningRates(LearningRateMonitor):
 
 class Checkpointing(ModelCheckpoint):
     """Checkpoints every N steps plus `last.ckpt`, which is also written if training stops on an error, Ctrl-C or
-    SIGTERM (then at the end of the step, `simplenerf.interrupts`).
+    SIGTERM (then at the end of the step, `simplenerf.run.signals`).
 
     Resume with `--ckpt_path last`. The folder is `<trainer.default_root_dir>/checkpoints` (linked by the CLI).
     """
@@ -99,7 +99,7 @@ class Checkpointing(ModelCheckpoint):
     def on_exception(self, trainer, pl_module, exception: BaseException) -> None:
         # After a divergence the weights are not worth keeping: last.ckpt stays the last good checkpoint. Nor are
         # they before training started (a restore may be half done), or after a second signal that stopped a step
-        # half way (`interrupts.Interrupted`); a first SIGTERM or SIGINT stops between steps (Lightning's
+        # half way (`signals.Interrupted`); a first SIGTERM or SIGINT stops between steps (Lightning's
         # SIGTERMException), where the state is whole and is saved.
         if isinstance(exception, (TrainingDiverged, Interrupted)) or not self._training:
             return

@@ -1,13 +1,13 @@
 """What SIGINT (Ctrl-C) and SIGTERM (a scheduler's stop, SLURM's preemption) do to a command (docs/running.md).
 
-`install()` (`simplenerf.console.run_tool` calls it first) makes both signals raise `Interrupted` where the program
+`install()` (`simplenerf.run.console.run_tool` calls it first) makes both signals raise `Interrupted` where the program
 is, so cleanups run (`finally`, `except BaseException`: process-data's partial folder, the sparse-depth cache's
 temporary file) and the command line prints one line and exits with 128 + the signal's number: 130 for SIGINT, 143
 for SIGTERM, the shell's convention that Lightning's own `sys.exit` on Ctrl-C does not follow (it exits 1).
 
 While Lightning runs a loop it has its own SIGTERM handler (`lightning.pytorch.trainer.connectors.signal_connector`),
 which calls ours after its own: the signal is then left to Lightning, which stops the loop at the end of the current
-batch (`trainer.received_sigterm` -> `SIGTERMException`); `fit` then writes last.ckpt (`callbacks.Checkpointing`)
+batch (`trainer.received_sigterm` -> `SIGTERMException`); `fit` then writes last.ckpt (`run.callbacks.Checkpointing`)
 and `test` removes its partial results (`Evaluator.on_exception`). SIGINT is forwarded to that path as a SIGTERM to
 the process itself. A second signal stops at once. SIGUSR1, Lightning's SLURM requeue signal
 (`SLURMEnvironment(auto_requeue=True)`), is left to Lightning.

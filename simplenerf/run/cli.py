@@ -9,8 +9,8 @@ renders (`--val_renders.*`), the evaluation callback (`--evaluation.*`) that wri
 optional video at the end of training (`--video.frames N`); `--viewer true`: the web viewer (`simplenerf.viewer`).
 
 A run is trusted before it starts: inputs (data, LPIPS weights, the checkpoint and whether it fits the model, the
-run folder; `simplenerf.checks`) are checked first and a problem stops the command with one `simplenerf: error:`
-line, exit status 2 and nothing created (`simplenerf.console`: parser errors too, with a hint). `fit` refuses a run
+run folder; `simplenerf.run.checks`) are checked first and a problem stops the command with one `simplenerf: error:`
+line, exit status 2 and nothing created (`simplenerf.run.console`: parser errors too, with a hint). `fit` refuses a run
 folder that already has checkpoints unless it resumes (`--ckpt_path last`) or is told `--overwrite true`;
 `<run>/config.yaml` records how the run was trained (`test` saves its own config beside its results).
 """
@@ -29,16 +29,23 @@ from lightning.pytorch import LightningDataModule, Trainer
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
 from lightning.pytorch.utilities import rank_zero_only
 
-from simplenerf import interrupts
-from simplenerf.callbacks import (
+from simplenerf.data.scene import SceneDataModule
+from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged
+from simplenerf.evaluation.evaluator import Evaluator
+from simplenerf.method.module import SimpleNeRF
+from simplenerf.metrics.lpips import LPIPSWeightsNotFound
+from simplenerf.run import signals
+from simplenerf.run.callbacks import (
     Checkpointing,
     LearningRates,
     ProgressLog,
     RaysPerSecond,
     StopOnNonFiniteLoss,
     TrainingProgressBar,
+    TrainingVideo,
+    ValidationRenders,
 )
-from simplenerf.checks import (
+from simplenerf.run.checks import (
     check_checkpoint_fits,
     check_model_meets_data,
     check_writable,
@@ -49,25 +56,19 @@ from simplenerf.checks import (
     read_checkpoint,
     resolve_checkpoint,
 )
-from simplenerf.console import PROG, HeldLogs, parser_error_line
-from simplenerf.data.scene import SceneDataModule
-from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged
-from simplenerf.evaluation.evaluator import Evaluator
-from simplenerf.loggers import WandbLogger
-from simplenerf.memory import reuse_freed_memory
-from simplenerf.metrics.lpips import LPIPSWeightsNotFound
-from simplenerf.module import SimpleNeRF
-from simplenerf.resume import (
+from simplenerf.run.console import PROG, HeldLogs, parser_error_line
+from simplenerf.run.lock import command_line, lock_run_folder
+from simplenerf.run.loggers import WandbLogger
+from simplenerf.run.memory import reuse_freed_memory
+from simplenerf.run.resume import (
     TEST_KEYS,
     RunRecord,
+    current_class_paths,
     describe_checkpoint,
     recorded_settings,
     run_settings,
     setting_changes,
 )
-from simplenerf.run_lock import command_line, lock_run_folder
-from simplenerf.viz.renders import ValidationRenders
-from simplenerf.viz.video import TrainingVideo
 
 DESCRIPTION = (
     "SimpleNeRF (SIGGRAPH Asia 2023): Neural Radiance Fields from 2 to 4 photos, regularised by simpler augmented "
@@ -181,12 +182,12 @@ class SimpleNeRFCLI(LightningCLI):
 
     def _run_subcommand(self, subcommand: str) -> None:
         if subcommand == "fit" and self.config_init[subcommand].get("viewer"):  # a callback like the others
-            from simplenerf.viewer.callback import TrainingViewer
+            from simplenerf.run.callbacks.viewer import TrainingViewer
 
             self.trainer.callbacks.append(TrainingViewer(port=self.config_init[subcommand]["viewer_port"]))
         # Bad input (a missing scene, missing LPIPS weights, a checkpoint that does not fit) stops here, before
         # loggers or outputs create anything: the data module and every callback that declares pre-flight checks
-        # (`simplenerf.checks`: ChecksModel, ChecksInputs, ChecksOutputs) run them.
+        # (`simplenerf.run.checks`: ChecksModel, ChecksInputs, ChecksOutputs) run them.
         data = self.datamodule if isinstance(self.datamodule, SceneDataModule) else None
         check_model_meets_data(self.model, data.n_views if data is not None else None, subcommand)
         try:
@@ -225,13 +226,13 @@ class SimpleNeRFCLI(LightningCLI):
         except TrainingDiverged as e:
             raise TrainingDiverged(f"{e}; {kept_checkpoints(folder)}") from None
         except (KeyboardInterrupt, SystemExit) as e:  # Lightning's SIGTERMException and its sys.exit(1) on Ctrl-C
-            if interrupts.received is None:
+            if signals.received is None:
                 raise
-            raise self.stopped(subcommand, folder, interrupts.received) from e
+            raise self.stopped(subcommand, folder, signals.received) from e
 
     def stopped(self, subcommand: str, folder: Path, signum: int) -> Stopped:
-        """The one line of a run a signal stopped (`simplenerf.interrupts`)."""
-        how = f"{subcommand} stopped by {interrupts.name(signum)}"
+        """The one line of a run a signal stopped (`simplenerf.run.signals`)."""
+        how = f"{subcommand} stopped by {signals.name(signum)}"
         if subcommand == "fit":
             return Stopped(f"{how} at step {self.trainer.global_step}; {kept_checkpoints(folder)}", signum)
         return Stopped(f"{how} before it finished: no results were written (earlier results are kept)", signum)
@@ -289,7 +290,9 @@ FIT_ONLY_KEYS = ("overwrite", "viewer", "viewer_port")
 
 def without_subcommand_keys(args: list[str], drop: tuple[str, ...]) -> list[str]:
     """`args` with each `--config FILE` whose top level sets one of `drop` (a run's saved config.yaml) given as its
-    YAML without those keys, so that a fit's record works as the --config of test, validate or a tool."""
+    YAML without those keys, so that a fit's record works as the --config of test, validate or a tool; a file that
+    names a moved class path (`resume.MOVED_CLASS_PATHS`: a run trained before the move) is given with the current
+    one."""
     out: list[str] = []
     i = 0
     while i < len(args):
@@ -334,9 +337,12 @@ def _config_without(path: str, drop: tuple[str, ...]) -> str:
         config = yaml.safe_load(file.read_text())
     except (yaml.YAMLError, UnicodeDecodeError):
         return path
-    if not isinstance(config, dict) or not any(key in config for key in drop):
+    if not isinstance(config, dict):
         return path
-    return yaml.safe_dump({k: v for k, v in config.items() if k not in drop}, sort_keys=False)
+    upgraded = current_class_paths(config)
+    if upgraded == config and not any(key in config for key in drop):
+        return path
+    return yaml.safe_dump({k: v for k, v in upgraded.items() if k not in drop}, sort_keys=False)
 
 
 def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[LightningCLI] = SimpleNeRFCLI):
@@ -344,7 +350,7 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
     that reads a run).
 
     Every entry point comes through here, so this is also where SIMPLENERF_MALLOC=reuse takes effect (keep freed
-    host memory for reuse: fewer page faults, more memory; see `simplenerf.memory`).
+    host memory for reuse: fewer page faults, more memory; see `simplenerf.run.memory`).
     A fit's saved `<run>/config.yaml` can be passed back as --config: the fit's own arguments in it (`overwrite`;
     for a tool also `ckpt_path` and `weights_only`) are dropped where they do not apply.
     """
@@ -366,7 +372,7 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
         parser_kwargs={"prog": PROG, "description": DESCRIPTION},
         seed_everything_default=0,
         run=run,
-        args=without_subcommand_keys(given, drop) if drop else given,
+        args=without_subcommand_keys(given, drop),
     )
 
 

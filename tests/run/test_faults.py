@@ -17,7 +17,7 @@ import pytest
 import torch
 
 from simplenerf.sfm.process_checks import MARKER, judge
-from tests.test_cli import REPO, run, run_args
+from tests.run.test_cli import REPO, run, run_args
 
 ERROR = "simplenerf: error: "
 # No validation or numbered checkpoint in the way, a progress line every step.
@@ -115,9 +115,9 @@ def test_sigterm_and_sigint_stop_fit_with_a_checkpoint_and_a_busy_folder_is_refu
 def test_a_lock_left_by_a_killed_process_is_taken_over(tmp_path):
     """SIGKILL leaves the lock file but not the lock: the kernel releases it with the process."""
     from simplenerf.errors import RunFolderError
-    from simplenerf.run_lock import LOCK_NAME, lock_run_folder
+    from simplenerf.run.lock import LOCK_NAME, lock_run_folder
 
-    code = (f"from simplenerf.run_lock import lock_run_folder; lock_run_folder({str(tmp_path)!r}, 'holder'); "
+    code = (f"from simplenerf.run.lock import lock_run_folder; lock_run_folder({str(tmp_path)!r}, 'holder'); "
             "print('locked', flush=True); import time; time.sleep(60)")
     holder = subprocess.Popen([sys.executable, "-c", code], cwd=REPO, stdout=subprocess.PIPE, text=True)
     assert holder.stdout.readline().strip() == "locked"

@@ -8,8 +8,8 @@ import pytest
 import torch
 from lightning.pytorch.callbacks import RichProgressBar
 
-from simplenerf.callbacks import ProgressLog, StopOnNonFiniteLoss, TrainingProgressBar, format_duration
 from simplenerf.errors import TrainingDiverged
+from simplenerf.run.callbacks.training import ProgressLog, StopOnNonFiniteLoss, TrainingProgressBar, format_duration
 
 
 def test_progress_bar_counts_optimiser_steps_after_a_resume(monkeypatch):

@@ -1,12 +1,22 @@
-"""The resume check's view of settings (simplenerf.resume): a setting that a run did not record (an option added to
+"""The resume check's view of settings (simplenerf.run.resume): a setting that a run did not record (an option added to
 the code since it was trained) passes at the current code's default and nowhere else. The CLI's resumes and their
-one-line errors are in tests/test_faults.py."""
+one-line errors are in tests/run/test_faults.py."""
 
 import copy
 
+import yaml
+
 from simplenerf.data.synthetic import SyntheticDataModule
-from simplenerf.module import SimpleNeRF
-from simplenerf.resume import NO_DEFAULT, setting_changes, setting_default
+from simplenerf.method.module import SimpleNeRF
+from simplenerf.run.cli import without_subcommand_keys
+from simplenerf.run.resume import (
+    NO_DEFAULT,
+    RECORD_KEY,
+    current_class_paths,
+    recorded_settings,
+    setting_changes,
+    setting_default,
+)
 
 CLASSES = {"model": SimpleNeRF, "data": SyntheticDataModule}
 GRID = "simplenerf.model.grid.KPlanesField"
@@ -95,3 +105,30 @@ def test_recorded_settings_still_compare_whatever_the_defaults():
     resized = with_(old, "model.nerf.init_args.coarse.init_args.resolutions", [32, 64, 128])  # a list of numbers
     assert setting_changes(old, resized, classes=CLASSES) == [
         "model.nerf.init_args.coarse.init_args.resolutions: [32, 64] -> [32, 64, 128]"]
+
+
+def test_a_run_from_before_the_move_reads_its_class_paths_as_the_current_ones(tmp_path):
+    """Issue 37 moved the run machinery into simplenerf.run and the LightningModule's optimiser into
+    simplenerf.method: a run's config.yaml and checkpoint written before name the old class paths."""
+    old = {"model": {"lr_scheduler": {"class_path": "simplenerf.optim.ExponentialDecay"}},
+           "trainer": {"callbacks": [{"class_path": "simplenerf.callbacks.LossWeightSchedule"},
+                                     {"class_path": "simplenerf.viz.renders.ValidationRenders"}],
+                       "logger": {"class_path": "simplenerf.loggers.WandbLogger"}},
+           "note": "simplenerf.callbacks.are.not.a.class"}
+    assert current_class_paths(old) == {
+        "model": {"lr_scheduler": {"class_path": "simplenerf.method.optim.ExponentialDecay"}},
+        "trainer": {"callbacks": [{"class_path": "simplenerf.run.callbacks.LossWeightSchedule"},
+                                  {"class_path": "simplenerf.run.callbacks.ValidationRenders"}],
+                    "logger": {"class_path": "simplenerf.run.loggers.WandbLogger"}},
+        "note": "simplenerf.callbacks.are.not.a.class",
+    }
+    checkpoint = {RECORD_KEY: {"settings": {"model": old["model"]}}}
+    assert recorded_settings(checkpoint) == {"model": {"lr_scheduler": {
+        "class_path": "simplenerf.method.optim.ExponentialDecay"}}}
+    # The CLI gives such a config.yaml to the parser with the current paths; a current one goes as the file itself.
+    file = tmp_path / "config.yaml"
+    file.write_text(yaml.safe_dump(old))
+    (given,) = [a for a in without_subcommand_keys(["--config", str(file)], ()) if a != "--config"]
+    assert yaml.safe_load(given) == current_class_paths(old)
+    file.write_text(yaml.safe_dump(current_class_paths(old)))
+    assert without_subcommand_keys(["--config", str(file)], ()) == ["--config", str(file)]

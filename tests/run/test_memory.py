@@ -11,12 +11,12 @@ import sys
 
 import pytest
 
-from simplenerf.memory import reuse_freed_memory
+from simplenerf.run.memory import reuse_freed_memory
 from tests.conftest import REPO
 
 PROBE = """
 import json, resource, torch
-from simplenerf.memory import reuse_freed_memory
+from simplenerf.run.memory import reuse_freed_memory
 applied = reuse_freed_memory()
 torch.manual_seed(0)
 mlp = torch.nn.Sequential(*[m for _ in range(4) for m in (torch.nn.Linear(64, 64), torch.nn.ReLU())])

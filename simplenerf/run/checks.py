@@ -18,7 +18,7 @@ import torch
 from lightning.pytorch.utilities import rank_zero_only
 
 from simplenerf.errors import CheckpointError, DataError, RunFolderError, unwritable
-from simplenerf.module import SimpleNeRF
+from simplenerf.method.module import SimpleNeRF
 
 
 @runtime_checkable

@@ -2,7 +2,7 @@
 
 `training_step` is one optimiser step of the paper's total loss (Sec. 4.4), L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav
 + l5 Lcfc (+ the fields' regularisers), the terms of `method.objective`. Pictures are the callbacks' job
-(`simplenerf.viz.renders`), evaluation (metrics, files) the `Evaluator`'s.
+(`simplenerf.run.callbacks`), evaluation (metrics, files) the `Evaluator`'s.
 """
 
 from __future__ import annotations
@@ -34,10 +34,10 @@ from simplenerf.method.objective import (
     build_terms,
     part_loss,
 )  # fmt: skip
+from simplenerf.method.optim import ExponentialDecay, default_optimizer, parameter_groups
 from simplenerf.method.reliability import ReliabilityMask, ReprojectionErrors
 from simplenerf.metrics.scores import psnr
 from simplenerf.model.nerf import FrameRender, NeRF
-from simplenerf.optim import ExponentialDecay, default_optimizer, parameter_groups
 
 
 def ray_slices(n: int, size: int | None) -> list[slice]:
@@ -126,7 +126,7 @@ class SimpleNeRF(L.LightningModule):
         if len(set(names)) != len(names) or set(RESERVED_NAMES) & set(names):
             raise ValueError(f"augmentation names must be unique and not one of {RESERVED_NAMES}, got {names}")
         fields = {"coarse": self.nerf.coarse, "fine": self.nerf.fine, **{a.name: a.field for a in self.augmentations}}
-        # The terms by name; `callbacks.LossWeightSchedule` sets their weights per step (the warm-up).
+        # The terms by name; `run.callbacks.LossWeightSchedule` sets their weights per step (the warm-up).
         self.terms: dict[str, Term] = build_terms(objective, list(self.augmentations), fields)
         self.train_views: Views | None = None  # what the reliability masks look at (`set_train_views`)
 

@@ -7,10 +7,10 @@ import torch
 
 from simplenerf.data.batches import TrainingBatch
 from simplenerf.data.synthetic import SyntheticDataModule
+from simplenerf.method.module import SimpleNeRF
 from simplenerf.method.objective import Objective, RenderedRays
 from simplenerf.method.reliability import ReliabilityMask
 from simplenerf.model.nerf import mlp_nerf
-from simplenerf.module import SimpleNeRF
 
 
 @pytest.fixture(scope="module")
@@ -163,7 +163,7 @@ def test_augmentations_share_the_main_coarse_samples(datamodule, monkeypatch):
 
 
 def test_loss_weight_schedule_is_data():
-    from simplenerf.callbacks import LossWeightSchedule
+    from simplenerf.run.callbacks import LossWeightSchedule
 
     schedule = LossWeightSchedule({"points": [(0, 0.0), (10000, 0.1)]})
     assert [schedule.value("points", s, 0.1) for s in (0, 9999, 10000, 50000)] == [0.0, 0.0, 0.1, 0.1]
@@ -172,8 +172,8 @@ def test_loss_weight_schedule_is_data():
 
 
 def test_a_schedule_naming_an_unknown_loss_is_one_clear_error():
-    from simplenerf.callbacks import LossWeightSchedule
     from simplenerf.errors import SimpleNeRFError
+    from simplenerf.run.callbacks import LossWeightSchedule
 
     model = simplenerf_module()
     LossWeightSchedule({"points": [(0, 0.0)], "cfc": [(0, 0.0)]}).check_model(model)  # known names pass
@@ -218,7 +218,7 @@ def test_parts_give_the_one_part_loss_gradient_and_logs(datamodule, monkeypatch)
 
 
 def test_batch_parts_split_random_then_sparse_rays_by_share(batch):
-    from simplenerf.module import batch_parts
+    from simplenerf.method.module import batch_parts
 
     whole = batch_parts(batch, None)
     assert len(whole) == 1 and whole[0].random is batch.random and whole[0].sparse is batch.sparse
@@ -245,7 +245,7 @@ def test_the_main_coarse_reprojection_error_is_computed_once_per_part(datamodule
 
 
 def test_ray_slices_cover_the_rays_in_parts_of_at_most_size():
-    from simplenerf.module import ray_slices
+    from simplenerf.method.module import ray_slices
 
     assert ray_slices(5, 2) == [slice(0, 2), slice(2, 4), slice(4, 5)]
     assert ray_slices(4, None) == [slice(0, 4)] and ray_slices(4, 8) == [slice(0, 4)]
@@ -286,9 +286,9 @@ def test_a_scheduled_tv_weight_is_applied_and_logged(batch, monkeypatch):
     weight * TV to the loss and logs both the TV and its weight."""
     from types import SimpleNamespace
 
-    from simplenerf.callbacks import LossWeightSchedule
     from simplenerf.model.grid import KPlanesField
     from simplenerf.model.nerf import NeRF
+    from simplenerf.run.callbacks import LossWeightSchedule
 
     torch.manual_seed(0)
     grid = {"resolutions": [8, 16], "features": 4, "hidden": 8}

@@ -17,7 +17,7 @@ import pytest
 import torch
 import yaml
 
-from tests.test_cli import REPO, SIZES, run, run_args, shrink
+from tests.run.test_cli import REPO, SIZES, run, run_args, shrink
 
 ERROR = "simplenerf: error: "
 

@@ -15,7 +15,7 @@ import torch
 import yaml
 
 from simplenerf.commands import LIGHTNING_VERBS, VERBS, main
-from simplenerf.lightning_cli import load_for_tool
+from simplenerf.run.cli import load_for_tool
 from tests.conftest import REPO, shared_dir
 
 SMALL = [
@@ -90,7 +90,7 @@ def test_fit_writes_checkpoints_and_resumes(trained):
     assert {"mask_points_step000002.png", "mask_views_step000002.png", "mask_cfc_step000002.png"} <= {
         p.name for p in (trained / "run" / "val").iterdir()
     }
-    # ...and the validation renders of the validation view (simplenerf.viz.renders.ValidationRenders, a CLI default).
+    # ...and the validation renders of the validation view (simplenerf.run.callbacks.ValidationRenders, a CLI default).
     assert {f"step000004_{kind}.png" for kind in ("rgb", "depth", "accumulation", "error")} <= {
         p.name for p in (trained / "run" / "val").iterdir()
     }
@@ -332,7 +332,7 @@ def test_user_augmentation_plugs_in_by_class_path(tmp_path):
         "    coarse_fine_mask: {class_path: simplenerf.method.reliability.PatchReprojectionMask}\n"
         "trainer:\n"
         "  callbacks:\n"
-        "    - class_path: simplenerf.callbacks.LossWeightSchedule\n"
+        "    - class_path: simplenerf.run.callbacks.LossWeightSchedule\n"
         "      init_args: {schedules: {lowpass: [[0, 0.0], [1, 0.1]]}}\n"
     )
     run("fit", *run_args(tmp_path), "--config", str(override), "--trainer.max_steps", "2")

@@ -135,7 +135,8 @@ def _archive_state(archive: Path, url: str | None, expected: Expected) -> str:
     part = partial_path(archive)
     partial = f"; {human(part.stat().st_size)} already downloaded, resumed" if part.is_file() else ""
     size = expected.size if expected.size is not None else remote_size(url) if url else None
-    return f"to download, {human(size)}{partial}"
+    exact = f" ({size} bytes)" if size is not None else ""
+    return f"to download, {human(size)}{exact}{partial}"
 
 
 # -- RealEstate-10K ---------------------------------------------------------------------------------------------------

@@ -186,6 +186,7 @@ def download_realestate(args: argparse.Namespace) -> None:
     if not args.metadata:
         raise DataError(f"--metadata is needed for {', '.join(c.id for c in todo)}: the dataset's camera files (a "
                         "folder, RealEstate10K.tar.gz or its URL; google.github.io/realestate10k/download.html)")
+    re10k.require_yt_dlp()
     metadata = metadata_path(args.metadata, downloads, args.metadata_sha256)
     texts = re10k.read_camera_texts(metadata, [c.id for c in todo])
     manifest_path = args.dest / re10k.MANIFEST
@@ -202,6 +203,8 @@ def download_realestate(args: argparse.Namespace) -> None:
         except DataError as e:
             print(f"simplenerf: error: {e}", file=sys.stderr)
             failed.append(clip.id)
+            if (downloads / clip.id).is_dir() and not any((downloads / clip.id).iterdir()):
+                (downloads / clip.id).rmdir()  # nothing to resume from
             continue
         manifest = read_json(manifest_path)
         manifest.setdefault("clips", {})[clip.id] = entry

@@ -160,7 +160,8 @@ class FetchedVideo:
     filesize: int | None
 
 
-def _yt_dlp():
+def require_yt_dlp():
+    """The yt_dlp module; DataError saying how to install it."""
     try:
         import yt_dlp
     except ImportError:
@@ -183,7 +184,7 @@ def _fetched(info: dict, path: Path) -> FetchedVideo:
 def fetch_video(clip: str, url: str, folder: Path, video_format: str = VIDEO_FORMAT) -> FetchedVideo:
     """Downloads the clip's video into `folder` with yt-dlp (which resumes its own partial file); ClipError with
     yt-dlp's reason when the video is gone, private or region-locked."""
-    yt_dlp = _yt_dlp()
+    yt_dlp = require_yt_dlp()
     folder.mkdir(parents=True, exist_ok=True)
     options = {"format": video_format, "outtmpl": str(folder / "video.%(ext)s"), "quiet": True, "no_warnings": True,
                "noprogress": True, "continuedl": True, "retries": 3}
@@ -201,7 +202,7 @@ def fetch_video(clip: str, url: str, folder: Path, video_format: str = VIDEO_FOR
 
 def probe_video(clip: str, url: str, video_format: str = VIDEO_FORMAT) -> FetchedVideo:
     """What yt-dlp would fetch (format, size) without downloading it, for --dry-run; ClipError as fetch_video."""
-    yt_dlp = _yt_dlp()
+    yt_dlp = require_yt_dlp()
     try:
         with yt_dlp.YoutubeDL({"format": video_format, "quiet": True, "no_warnings": True}) as ydl:
             info = ydl.extract_info(url, download=False)

@@ -236,7 +236,7 @@ def fetch_clip(clip: re10k.Clip, cameras: re10k.ClipCameras, args: argparse.Name
     video_folder = downloads / clip.id
     print(f"  fetching {cameras.url}")
     video = re10k.fetch_video(clip.id, cameras.url, video_folder, args.format)
-    print(f"  {video.format_id} ({video.ext}, {video.vcodec}, {video.width}x{video.height}); cutting "
+    print(f"  format {video.format_id} ({video.ext}, {video.vcodec}, {video.resolution}); cutting "
           f"{len(cameras.timestamps)} frames")
     frames = re10k.write_clip(clip, cameras, video.path, args.dest, size)
     found = check(video.path, Expected(), str(video.path))
@@ -246,7 +246,7 @@ def fetch_clip(clip: re10k.Clip, cameras: re10k.ClipCameras, args: argparse.Name
         "url": cameras.url, "start": cameras.timestamps[0], "frames": len(cameras.timestamps),
         "size": f"{size[0]}x{size[1]}",
         "video": {"format_id": video.format_id, "ext": video.ext, "vcodec": video.vcodec,
-                  "resolution": f"{video.width}x{video.height}", "fps": video.fps, "bytes": found.size,
+                  "resolution": video.resolution, "fps": video.fps, "bytes": found.size,
                   "sha256": found.sha256},
         "tools": {"yt_dlp": _version("yt_dlp"), "av": av.__version__},
         **frames,
@@ -287,7 +287,6 @@ def dry_run_realestate(args: argparse.Namespace, clips: list[re10k.Clip], states
         try:
             cameras = re10k.clip_cameras(clip, texts[clip.id])
             video = re10k.probe_video(clip.id, cameras.url, args.format)
-            print(line + f"fetch {cameras.url}: {video.format_id} {video.width}x{video.height}, "
-                  f"{human(video.filesize)}")
+            print(line + f"fetch {cameras.url}: format {video.format_id} {video.resolution}, {human(video.filesize)}")
         except DataError as e:
             print(line + f"cannot be fetched: {e}")

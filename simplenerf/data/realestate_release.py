@@ -159,6 +159,11 @@ class FetchedVideo:
     fps: float | None
     filesize: int | None
 
+    @property
+    def resolution(self) -> str:
+        """WIDTHxHEIGHT as yt-dlp reports it, 'unknown' when it does not."""
+        return f"{self.width}x{self.height}" if self.width and self.height else "unknown"
+
 
 def require_yt_dlp():
     """The yt_dlp module; DataError saying how to install it."""

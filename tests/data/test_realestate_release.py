@@ -150,7 +150,7 @@ def test_dry_run_reads_the_camera_files_asks_ytdlp_and_writes_nothing(world, cap
                     "--dry-run") == 0
     out = capsys.readouterr().out
     assert f"clips:    2 (2 to fetch) into {world.dest}/<id>/" in out
-    assert f"  {GOOD}  50 frames from first camera line: fetch {world.urls[GOOD]}: 137 64x48, " in out
+    assert f"  {GOOD}  50 frames from first camera line: fetch {world.urls[GOOD]}: format 137 64x48, " in out
     assert f"  {GONE}  50 frames from first camera line: cannot be fetched: clip {GONE}: its video" in out
     assert all(not download for _, download in world.calls)
     assert not world.dest.exists()

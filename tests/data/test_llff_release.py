@@ -8,6 +8,8 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import sys
+import types
 import zipfile
 from pathlib import Path
 
@@ -143,3 +145,24 @@ def test_a_broken_archive_is_one_line(tmp_path, capsys):
     archive.write_bytes(b"PK not really a zip")
     assert download("--archive", str(archive), "--dest", str(tmp_path / "out"), "--scenes", "fern") == 2
     assert f"cannot read {archive} as a zip archive" in capsys.readouterr().err
+
+
+def test_google_drive_goes_through_gdown_with_resume(archive, tmp_path, monkeypatch, capsys):
+    """gdown replaced by a stub: called with the release's file id and resume=True, its output checked and renamed."""
+    calls = []
+
+    def fake_download(id: str, output: str, quiet: bool, resume: bool) -> str:  # noqa: A002 (gdown's name)
+        calls.append((id, Path(output).name, resume))
+        Path(output).write_bytes(archive)
+        return output
+
+    monkeypatch.setitem(sys.modules, "gdown", types.SimpleNamespace(download=fake_download))
+    dest = tmp_path / "data" / "nerf_llff_data"
+    assert download("--dest", str(dest), "--scenes", "horns", "--factors", "8") == 0
+    assert calls == [(DRIVE_FILE_ID, "nerf_llff_data.zip.unchecked", True)]
+    assert (tmp_path / "data" / "nerf_llff_data.zip").read_bytes() == archive
+    assert "not checked: none is published; pass --sha256 to check it" in capsys.readouterr().out
+    assert sorted(p.name for p in (dest / "horns").iterdir()) == ["images_8", "poses_bounds.npy"]
+    monkeypatch.setitem(sys.modules, "gdown", None)  # not installed
+    assert download("--dest", str(tmp_path / "other"), "--scenes", "fern") == 2
+    assert "downloading from Google Drive needs gdown: pip install 'simplenerf[data]'" in capsys.readouterr().err

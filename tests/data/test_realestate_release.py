@@ -164,3 +164,20 @@ def test_without_metadata_or_yt_dlp_the_error_says_what_to_do(world, monkeypatch
     err = capsys.readouterr().err
     assert err == "simplenerf: error: fetching RealEstate-10K videos needs yt-dlp: pip install 'simplenerf[data]'\n"
     assert not world.dest.exists()
+
+
+def test_metadata_from_a_url_is_downloaded_checked_and_used(world, capsys):
+    from tests.data.local_server import LocalServer
+
+    data = world.metadata.read_bytes()
+    with LocalServer() as server:
+        server.behaviour.files["/RealEstate10K.tar.gz"] = data
+        url = server.url("/RealEstate10K.tar.gz")
+        assert download("--ids", GOOD, "--metadata", url, "--metadata-sha256", "cd" * 32, "--dest",
+                        str(world.dest)) == 2
+        assert f"has SHA-256 {hashlib.sha256(data).hexdigest()}, expected {'cd' * 32}; deleted it" in \
+            capsys.readouterr().err
+        assert download("--ids", GOOD, "--metadata", url, "--metadata-sha256", hashlib.sha256(data).hexdigest(),
+                        "--dest", str(world.dest)) == 0
+    assert (world.dest / ".downloads" / "RealEstate10K.tar.gz").read_bytes() == data
+    assert len((world.dest / GOOD / f"{GOOD}.txt").read_text().splitlines()) == 51  # the first 50 camera lines

@@ -48,6 +48,7 @@ VERBS: dict[str, Verb] = {
     "run-history": Verb("simplenerf.commands.run_history", "what a run logged, read back from its W&B files (CSV)"),
     "sparse-depth": Verb("simplenerf.commands.sparse_depth", "compute and cache a config's SfM sparse depth"),
     "heldout-depth": Verb("simplenerf.commands.heldout_depth", "a trained run's depth error at held-out SfM points"),
+    "download": Verb("simplenerf.commands.download", "the paper's data: LLFF, RealEstate-10K clips (checked, resumed)"),
     "synthetic": Verb("simplenerf.commands.synthetic", "write the built-in synthetic scene"),
     "view": Verb("simplenerf.commands.view", "the web viewer of a run: renders, depths, masks from any camera"),
     "benchmark": Verb("simplenerf.commands.benchmark", "seconds per training step and peak memory of a config"),

@@ -15,8 +15,8 @@ from pathlib import Path
 
 from simplenerf.commands import CommandParser
 from simplenerf.experiments.executors import run_here, submit_slurm, units_to_run, write_manifest, write_slurm_scripts
-from simplenerf.experiments.plan import STAGES, build_plan
-from simplenerf.experiments.spec import EXECUTORS, SweepError, load_sweep
+from simplenerf.experiments.plan import build_plan
+from simplenerf.experiments.spec import EXECUTORS, STAGES, SweepError, load_sweep
 from simplenerf.experiments.state import process_alive, read_state, read_status
 from simplenerf.experiments.status import status_table
 

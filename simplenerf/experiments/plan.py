@@ -33,10 +33,17 @@ from pathlib import Path
 
 import yaml
 
-from simplenerf.experiments.spec import SCENE_DEPTH, SceneEntry, Sweep, SweepError, configs_for, scene_name, slug
+from simplenerf.experiments.spec import (
+    SCENE_DEPTH,
+    SceneEntry,
+    Sweep,
+    SweepError,
+    configs_for,
+    scene_name,
+    slug,
+)
 from simplenerf.experiments.state import read_state
 
-STAGES = ("dense", "depth", "masks", "fit", "test", "table")
 # Left out of a digest: where things are written and how they are logged, not what is computed.
 VOLATILE = ("config", "ckpt_path", "overwrite", "progress", "trainer.default_root_dir", "trainer.logger",
             "checkpoint.dirpath", "data.init_args.sparse_depth_cache", "trainer.enable_progress_bar")
@@ -281,13 +288,14 @@ def build_plan(sweep: Sweep, sweep_file: str | Path | None = None, check_scenes:
                     test = Unit("test", key, str(folder), digest_of(digest, ref_digest), test_args, log,
                                 [fit.id, masks[(name, n)].id], labels,
                                 {"format": scene.format, "row": model.name if len(sweep.seeds) == 1
-                                 else f"{model.name} (seed {s})"})
+                                 else f"{model.name} (seed {s})", "masks": masks[(name, n)].folder})
                     fits.append(fit)
                     tests.append(test)
     units += list(masks.values()) + fits + tests
     table = Unit("table", sweep.name, str(out), digest_of([t.digest for t in tests], sweep.tables), [], [],
                  [t.id for t in tests], {"scene": "", "views": "", "model": "", "seed": ""},
-                 {"runs": [[t.extra["format"], t.extra["row"], t.folder] for t in tests], "tables": sweep.tables,
+                 {"runs": [[t.extra["format"], t.extra["row"], t.folder, t.key, t.extra["masks"]] for t in tests],
+                  "tables": sweep.tables,
                   "sweep_file": str(Path(sweep_file).resolve()) if sweep_file else None})
     units.append(table)
     check_folders(units)

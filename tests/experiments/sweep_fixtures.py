@@ -93,6 +93,17 @@ class RequeueSignalAt(Callback):
             raise Preempted(f"preempted at step {self.step}")
 
 
+class FailAt(Callback):
+    """Raises RuntimeError("made to fail at step N") when training reaches `step`: a fit that fails with an error."""
+
+    def __init__(self, step: int, marker: str) -> None:
+        self.step = step
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        if trainer.global_step == self.step:
+            raise RuntimeError(f"made to fail at step {self.step}")
+
+
 class Preempted(RuntimeError):
     pass
 

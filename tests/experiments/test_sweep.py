@@ -172,6 +172,12 @@ def test_local_executor_two_at_once_and_a_killed_run_resumes(tmp_path):
     status = status_table(tmp_path / "out")
     assert "| fit | scene0 | 2 | SimpleNeRF | 0 | stopped | 2/6 |" in status
     assert "| test | scene0 | 2 | SimpleNeRF | 0 | pending |" in status
+    # The table (afterany) ran: DS-NeRF's row, and a line for the run that is missing with its reason.
+    results = (tmp_path / "out" / "results.md").read_text()
+    assert "| DS-NeRF |" in results and "| SimpleNeRF |" not in results
+    assert ("- 1 of 2 runs are not in the table (the means above are over the others):\n"
+            "  - scene0/2v/SimpleNeRF/seed0: its fit stopped at step 2 (its process ended without a word: killed, out "
+            "of memory?); its test did not run") in results
     step2 = simple / "checkpoints" / "step000002.ckpt"
     untouched = {p: p.stat().st_mtime_ns for p in [step2, *ds.rglob("*.ckpt"), ds / "test" / "summary.json"]}
 
@@ -181,6 +187,29 @@ def test_local_executor_two_at_once_and_a_killed_run_resumes(tmp_path):
     assert read_state(simple, "fit")["attempts"] == 2 and read_state(ds, "fit")["attempts"] == 1
     assert (simple / "test" / "summary.json").is_file()
     assert "| SimpleNeRF |" in (tmp_path / "out" / "results.md").read_text()
+
+
+def test_a_failed_fit_blocks_its_own_test_only_and_the_table_says_why(tmp_path):
+    """One fit raises at step 1: its test never starts (blocked), the other model's fit and test finish, the sweep
+    ends with status 1 and the table has the finished row plus a line for the missing run with the fit's error."""
+    configs = tiny_configs(tmp_path / "configs", steps=2)
+    scene = synthetic_scenes(tmp_path / "data", n=1)[0]
+    fail = callbacks_override(tmp_path / "configs", "fail", "FailAt", step=1, keep_warmup=False)  # DS-NeRF: none
+    model_list = models(configs)
+    model_list[1]["configs"].append(str(fail))
+    path = write_sweep(tmp_path / "sweep.yaml", [{"path": str(scene), "reference_depth": "scene"}], [2], model_list,
+                       configs, tmp_path / "out")
+    with pytest.raises(SystemExit) as ended:
+        main(["sweep", "--config", str(path)])
+    assert ended.value.code == 1
+    runs = tmp_path / "out" / "runs" / "scene0" / "2v"
+    assert (runs / "SimpleNeRF" / "seed0" / "test" / "summary.json").is_file()
+    assert read_state(runs / "DS-NeRF" / "seed0", "fit")["status"] == "failed"
+    assert read_state(runs / "DS-NeRF" / "seed0", "test") is None  # never started
+    results = (tmp_path / "out" / "results.md").read_text()
+    assert "| SimpleNeRF |" in results and "| DS-NeRF |" not in results
+    assert ("  - scene0/2v/DS-NeRF/seed0: its fit failed: RuntimeError: made to fail at step 1; its test did not run"
+            in results), results
 
 
 @pytest.fixture
@@ -193,39 +222,99 @@ def table1_sweep(tmp_path) -> Path:
     return path
 
 
-def test_slurm_dry_run_writes_scripts_a_user_submits_as_they_are(table1_sweep, tmp_path):
+def fake_sbatch(bin_dir: Path) -> None:
+    """A stand-in sbatch on PATH: records its arguments in bin/calls and answers job ids 1001, 1002, ..."""
+    bin_dir.mkdir(exist_ok=True)
+    (bin_dir / "sbatch").write_text('#!/bin/bash\nd=$(dirname "$0"); n=$(( $(cat "$d/n" 2>/dev/null || echo 1000) + 1'
+                                    '))\necho $n > "$d/n"; echo "$@" >> "$d/calls"; echo "$n;cluster"\n')
+    (bin_dir / "sbatch").chmod(0o755)
+
+
+def waits_on(dependency: str | None, n_tasks: int) -> list[set[tuple[str, int | None]]]:
+    """Per task of an array, the (job id, task) it waits for, as SLURM reads `--dependency`: `afterok:J` every task of
+    J, `afterok:J_T` task T, `aftercorr:J` the task of the same index. (The table's afterany is left out.)"""
+    per_task: list[set] = [set() for _ in range(n_tasks)]
+    for part in (dependency or "").split(","):
+        kind, _, targets = part.partition(":")
+        if kind not in ("afterok", "aftercorr"):
+            continue
+        for target in targets.split(":"):
+            job, _, task = target.partition("_")
+            for i in range(n_tasks):
+                per_task[i].add((job, i if kind == "aftercorr" else int(task) if task else None))
+    return per_task
+
+
+def test_slurm_dry_run_scripts_wait_per_task_and_ask_per_stage_resources(table1_sweep, tmp_path):
+    """The dry run's scripts as a cluster admin reads them: each test waits for its own fit and its own masks only
+    (a failed fit cancels its one test), depth task i after dense task i, the masks after their scene's depth, the
+    table after every test whatever their outcome; the masks and the table ask for no GPU. submit.sh runs as it is
+    (a stand-in sbatch) and records the job ids for `sweep status`."""
     proc = sweep_cli("--config", str(table1_sweep), "--executor", "slurm", "--dry-run")
     assert proc.returncode == 0, proc.stderr
     folder = tmp_path / "out" / "slurm"
+    arrays = json.loads((folder / "arrays.json").read_text())
+    names = [a["name"] for a in arrays]
+    assert names == ["dense", "depth", *[f"masks_{k}" for k in range(8)], "fit", *[f"test_{k}" for k in range(48)],
+                     "table"]
     fit = (folder / "fit.sbatch").read_text()
-    n_fits = len(json.loads((folder / "fit.json").read_text()))
-    assert n_fits == 8 * 3 * 2  # 8 scenes x 3 views x SimpleNeRF and DS-NeRF
-    for line in (f"#SBATCH --array=0-{n_fits - 1}%", "#SBATCH --signal=USR1@90", "#SBATCH --gpus-per-node=1",
-                 "#SBATCH --cpus-per-task=", "#SBATCH --time=", "#SBATCH --kill-on-invalid-dep=yes",
-                 f"#SBATCH --chdir={REPO}", "-m simplenerf sweep job", "${SLURM_ARRAY_TASK_ID}", "srun "):
+    for line in ("#SBATCH --array=0-47%24", "#SBATCH --signal=USR1@90", "#SBATCH --gpus-per-node=1",
+                 "#SBATCH --cpus-per-task=8", "#SBATCH --mem=32768MB", "#SBATCH --time=1440",
+                 "#SBATCH --kill-on-invalid-dep=yes", f"#SBATCH --chdir={REPO}", "-m simplenerf sweep job",
+                 " fit ${SLURM_ARRAY_TASK_ID}", "srun "):
         assert line in fit, line
-    submit = (folder / "submit.sh").read_text()
-    test_line = f"test=$(sbatch --parsable --dependency=afterok:${{masks%%;*}}:${{fit%%;*}} {folder / 'test.sbatch'})"
-    assert test_line in submit
-    assert f"table=$(sbatch --parsable --dependency=afterany:${{test%%;*}} {folder / 'table.sbatch'})" in submit
-    # submit.sh as it is, with a stand-in sbatch that records its arguments
-    bin_dir = tmp_path / "bin"
-    bin_dir.mkdir()
-    (bin_dir / "sbatch").write_text('#!/bin/bash\necho "$@" >> "$(dirname "$0")/calls"\necho $((RANDOM + 1000))\n')
-    (bin_dir / "sbatch").chmod(0o755)
-    path = f"{bin_dir}:{os.environ['PATH']}"
+    for name in ("masks_0", "table"):  # no GPU where none is used
+        assert "--gpus" not in (folder / f"{name}.sbatch").read_text() and "--gres" not in (
+            folder / f"{name}.sbatch").read_text(), name
+    table = (folder / "table.sbatch").read_text()
+    assert "#SBATCH --cpus-per-task=1" in table and "#SBATCH --time=30" in table and "#SBATCH --mem=4096MB" in table
+    assert "#SBATCH --gpus-per-node=1" in (folder / "test_0.sbatch").read_text()
+
+    # submit.sh as it is, with a stand-in sbatch
+    fake_sbatch(tmp_path / "bin")
+    path = f"{tmp_path / 'bin'}:{os.environ['PATH']}"
     run = subprocess.run(["bash", str(folder / "submit.sh")], env={**os.environ, "PATH": path}, capture_output=True,
                          text=True)
     assert run.returncode == 0, run.stderr
-    calls = (bin_dir / "calls").read_text().splitlines()
-    stages = ("dense", "depth", "masks", "fit", "test", "table")
-    assert [Path(c.split()[-1]).name for c in calls] == [f"{s}.sbatch" for s in stages]
-    assert "--dependency=afterok:" in calls[4]
+    calls = (tmp_path / "bin" / "calls").read_text().splitlines()
+    assert [Path(c.split()[-1]).stem for c in calls] == names
+    ids = {name: str(1001 + i) for i, name in enumerate(names)}
+    assert (folder / "submitted.txt").read_text().splitlines() == [f"{n} {ids[n]}" for n in names]
+    found = [re.search(r"--dependency=(\S+)", c) for c in calls]
+    dependency = {n: m[1] if m else None for n, m in zip(names, found, strict=True)}
+    assert dependency["dense"] is None and dependency["fit"] is None
+    assert dependency["depth"] == f"aftercorr:{ids['dense']}"
+    assert dependency["table"] == "afterany:" + ":".join(ids[f"test_{k}"] for k in range(48))
+
+    # Unit ids per (job id, task), then what every task waits for: exactly the units it reads.
+    unit_at = {(ids[a["name"]], t): u for a in arrays for t, u in enumerate(a["units"])}
+    units = {u.id: u for u in build_plan(load_sweep(table1_sweep), table1_sweep, check_scenes=False).units}
+    readers: dict[str, set[str]] = {}
+    for a in arrays:
+        if a["name"] == "table":
+            continue
+        for task, waits in enumerate(waits_on(dependency[a["name"]], len(a["units"]))):
+            unit = a["units"][task]
+            read = {unit_at[(j, t)] for j, t in waits if t is not None}
+            read |= {u for j, t in waits if t is None for (jj, _), u in unit_at.items() if jj == j}
+            assert read == set(units[unit].needs), (unit, read)
+            for r in read:
+                readers.setdefault(r, set()).add(unit)
+    fit_units = json.loads((folder / "fit.json").read_text())
+    assert len(fit_units) == 48
+    for fit_unit in fit_units:  # a failed fit blocks its own test and nothing else
+        assert readers[f"fit:{fit_unit['key']}"] == {f"test:{fit_unit['key']}"}
+    assert readers["masks:fern/2v"] == {f"test:fern/2v/{m}/seed0" for m in ("SimpleNeRF", "DS-NeRF")}
+    assert readers["depth:fern"] == {f"masks:fern/{n}v" for n in (2, 3, 4)}
+
+
+def names_index(arrays: list[dict], name: str) -> int:
+    return [a["name"] for a in arrays].index(name)
 
 
 def test_slurm_submission_through_submitit(table1_sweep, tmp_path, monkeypatch):
-    """The real path: submitit writes and submits one array per stage (here to a stand-in sbatch), dependencies and
-    Lightning's requeue signal in the scripts; submitit's own preemption signal is not the one SLURM sends."""
+    """The real path: submitit writes and submits each array (here to a stand-in sbatch), the per-task dependencies
+    and Lightning's requeue signal in the scripts; submitit's own preemption signal is not the one SLURM sends."""
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     (bin_dir / "sbatch").write_text('#!/bin/bash\nd=$(dirname "$0"); n=$(( $(cat "$d/n" 2>/dev/null || echo 1000) + 1'
@@ -241,12 +330,19 @@ def test_slurm_submission_through_submitit(table1_sweep, tmp_path, monkeypatch):
     table1_sweep.write_text(yaml.safe_dump(sweep))
     plan = build_plan(load_sweep(table1_sweep), table1_sweep)
     ids = submit_slurm(plan, units_to_run(plan), log=lambda *a: None)
-    assert list(ids) == ["dense", "depth", "masks", "fit", "test", "table"]
+    assert list(ids)[:4] == ["dense", "depth", "masks_0", "masks_1"] and len(ids) == 2 + 8 + 1 + 48 + 1
     scripts = {p.name: p.read_text() for p in bin_dir.glob("*.sh")}
-    test = scripts[f"{ids['test']}.sh"]
-    assert f"#SBATCH --dependency=afterok:{ids['masks']}:{ids['fit']}" in test or \
-        f"#SBATCH --dependency=afterok:{ids['fit']}:{ids['masks']}" in test
+    arrays = json.loads((tmp_path / "out" / "slurm" / "arrays.json").read_text())
+    at = {u: (a["name"], t) for a in arrays for t, u in enumerate(a["units"])}
+    test_unit = next(u for u in plan.units if u.id == arrays[names_index(arrays, "test_5")]["units"][0])
+    masks, fit = (at[n] for n in sorted(test_unit.needs, key=lambda n: n.startswith("fit")))
+    test = scripts[f"{ids['test_5']}.sh"]
+    assert f"#SBATCH --dependency=afterok:{ids[masks[0]]}_{masks[1]}:{ids['fit']}_{fit[1]}" in test
+    assert f"#SBATCH --dependency=aftercorr:{ids['dense']}" in scripts[f"{ids['depth']}.sh"]
     assert "#SBATCH --signal=USR1@90" in test and "submitit.core._submit" in test
+    assert "--gpus-per-node" not in scripts[f"{ids['masks_0']}.sh"] and "--gpus-per-node=1" in test
+    submitted = (tmp_path / "out" / "slurm" / "submitted.txt").read_text().splitlines()
+    assert submitted == [f"{name} {i}" for name, i in ids.items()]
     from submitit.core.job_environment import JobEnvironment
 
     assert JobEnvironment.USR_SIG == "USR2"  # submitit's requeue signal; SLURM sends USR1, Lightning's

@@ -4,7 +4,8 @@ what failed (simplenerf.experiments, docs/experiments.md), e.g.
 
     simplenerf sweep --config configs/sweeps/cpu_grid.yaml --executor local
     simplenerf sweep --config configs/sweeps/llff_table1.yaml --executor slurm --dry-run
-    simplenerf sweep status SWEEP_DIR                 (every job's state)
+    simplenerf sweep status SWEEP_DIR                 (every job's state; SLURM's too when squeue / sacct are here)
+    simplenerf sweep cancel SWEEP_DIR                 (scancel what of its SLURM submission is queued or running)
     simplenerf sweep job SWEEP_DIR STAGE INDEX        (what the sbatch scripts of --dry-run run)
 """
 
@@ -36,6 +37,13 @@ def main(argv: list[str]) -> None:
         if len(argv) != 2:
             raise SystemExit("usage: simplenerf sweep status SWEEP_DIR")
         print(status_table(Path(argv[1])))
+        return
+    if argv[:1] == ["cancel"]:
+        from simplenerf.experiments.slurm import cancel
+
+        if len(argv) != 2:
+            raise SystemExit("usage: simplenerf sweep cancel SWEEP_DIR")
+        cancel(Path(argv[1]))
         return
     if argv[:1] == ["job"]:
         from simplenerf.experiments.jobs import main as job

@@ -381,3 +381,55 @@ def test_requeue_under_slurm_continues_in_the_same_folder_and_wandb_run(tmp_path
     assert torch.load(folder / "checkpoints" / "last.ckpt", weights_only=False)["global_step"] == 4
     started = sorted(p.name for p in (folder / "wandb").glob("offline-run-*"))
     assert len(started) == 2 and len({wandb_run_id(name) for name in started}) == 1
+
+
+def fake_slurm_tool(bin_dir: Path, name: str, output: str) -> None:
+    """A stand-in SLURM command on PATH: records its arguments in bin/<name>.calls and prints `output`."""
+    (bin_dir / name).write_text(f'#!/bin/bash\nprintf "%s\\n" "$*" >> "$(dirname "$0")/{name}.calls"\n'
+                                f'cat <<"EOF"\n{output}EOF\n')
+    (bin_dir / name).chmod(0o755)
+
+
+def test_status_asks_slurm_and_cancel_cancels_what_is_queued_or_running(table1_sweep, tmp_path):
+    """A submitted sweep (the dry run's submit.sh with a stand-in sbatch: arrays 1001, 1002, ...), then stand-in
+    squeue / sacct: what SLURM killed shows with its state and job id, what waits shows queued; `sweep cancel` sends
+    scancel the arrays that still have something queued or running."""
+    assert sweep_cli("--config", str(table1_sweep), "--executor", "slurm", "--dry-run").returncode == 0
+    out = tmp_path / "out"
+    bin_dir = tmp_path / "bin"
+    fake_sbatch(bin_dir)
+    env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}"}
+    assert subprocess.run(["bash", str(out / "slurm" / "submit.sh")], env=env, capture_output=True).returncode == 0
+    submitted = dict(line.split() for line in (out / "slurm" / "submitted.txt").read_text().splitlines())
+    fit, test0 = submitted["fit"], submitted["test_0"]
+    fits = [u["key"] for u in json.loads((out / "slurm" / "fit.json").read_text())]
+    fake_slurm_tool(bin_dir, "sacct", f"{submitted['dense']}_0|COMPLETED|0:0\n{fit}_2|TIMEOUT|0:0\n"
+                    f"{fit}_3|OUT_OF_MEMORY|0:125\n{fit}_4|NODE_FAIL|0:0\n{fit}_5|CANCELLED by 1000|0:0\n")
+    fake_slurm_tool(bin_dir, "squeue", f"{fit}_0|RUNNING|None\n{fit}_[6-47%24]|PENDING|JobArrayTaskLimit\n"
+                    f"{test0}_0|PENDING|Dependency\n")
+    fake_slurm_tool(bin_dir, "scancel", "")
+    status = subprocess.run([sys.executable, "-m", "simplenerf", "sweep", "status", str(out)], env=env,
+                            capture_output=True, text=True, cwd=REPO)
+    assert status.returncode == 0, status.stderr
+    rows = {tuple(c.strip() for c in line.split("|")[1:6]): [c.strip() for c in line.split("|")[6:-1]]
+            for line in status.stdout.splitlines() if line.startswith("| fit") or line.startswith("| test")}
+
+    def row(stage: str, key: str) -> list[str]:
+        scene, views, model, seed = key.split("/")
+        return rows[(stage, scene, views.removesuffix("v"), model, seed.removeprefix("seed"))]
+
+    assert row("fit", fits[0])[0] == "running" and row("fit", fits[0])[3] == f"{fit}_0"
+    for task, state in ((2, "timeout"), (3, "out_of_memory"), (4, "node_fail"), (5, "cancelled")):
+        status_, _, _, job, error = row("fit", fits[task])
+        assert (status_, job) == (state, f"{fit}_{task}") and error.startswith(f"SLURM: {state.upper()}"), task
+    assert row("fit", fits[3])[4] == "SLURM: OUT_OF_MEMORY, exit 0:125"
+    assert row("fit", fits[47])[0] == "queued" and row("fit", fits[47])[4] == "SLURM: PENDING (JobArrayTaskLimit)"
+    assert row("test", fits[0])[0] == "queued" and row("test", fits[0])[3] == f"{test0}_0"
+    assert row("fit", fits[1])[0] == "pending"  # SLURM knows nothing of it: the sweep's own word
+    assert (bin_dir / "sacct.calls").read_text().startswith("-n -P -X -j 1001,1002,")
+
+    cancel = subprocess.run([sys.executable, "-m", "simplenerf", "sweep", "cancel", str(out)], env=env,
+                            capture_output=True, text=True, cwd=REPO)
+    assert cancel.returncode == 0, cancel.stderr
+    assert (bin_dir / "scancel.calls").read_text().split() == [fit, test0]
+    assert f"cancelled 2 of {len(submitted)} job arrays: {fit} {test0}" in cancel.stdout

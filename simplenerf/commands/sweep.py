@@ -17,6 +17,7 @@ from pathlib import Path
 from simplenerf.commands import CommandParser
 from simplenerf.experiments.executors import run_here, submit_slurm, units_to_run, write_manifest, write_slurm_scripts
 from simplenerf.experiments.plan import build_plan
+from simplenerf.experiments.preflight import PreflightError, preflight
 from simplenerf.experiments.spec import EXECUTORS, STAGES, SweepError, load_sweep
 from simplenerf.experiments.state import process_alive, read_state, read_status
 from simplenerf.experiments.status import status_table
@@ -61,7 +62,10 @@ def main(argv: list[str]) -> None:
     counts = ", ".join(f"{sum(u.stage == s for u in todo)}/{len(plan.stage(s))} {s}" for s in STAGES
                        if plan.stage(s))
     print(f"sweep {sweep.name}: {len(plan.units)} jobs in {plan.output}; to run: {counts}")
+    problems = preflight(plan, executor)
     if args.dry_run:
+        for problem in problems:
+            print(f"warning: a submission would stop here: {problem}")
         for unit in todo:
             print(f"  {unit.stage} {unit.key}" + (f"  (after {', '.join(unit.needs)})" if unit.needs and
                                                   unit.stage != "table" else ""))
@@ -76,6 +80,9 @@ def main(argv: list[str]) -> None:
         state = read_state(Path(live[0].folder), live[0].stage) or {}
         raise SweepError(f"{live[0].stage} {live[0].key} is running (process {state.get('pid')} on this machine): "
                          "one sweep at a time in a sweep folder; wait for it, or stop it and run the sweep again")
+    if problems:
+        raise PreflightError(f"{len(problems)} problem(s) found before anything ran; nothing was submitted:\n"
+                             + "\n".join(f"  {p}" for p in problems))
     write_manifest(plan)
     if executor == "slurm":
         submit_slurm(plan, todo)

@@ -262,6 +262,7 @@ def build_plan(sweep: Sweep, sweep_file: str | Path | None = None, check_scenes:
                      str(s0)]
             config = resolved_for_scene(first, str(Path(scene.path).resolve()), entry, cache)
             max_steps = config.get("trainer", {}).get("max_steps")
+            evaluation = config.get("evaluation") or {}
             for n in sweep.views:
                 ref_folder, ref_digest, ref_unit = depth_of[(name, n)]
                 if (name, n) not in masks:
@@ -288,7 +289,9 @@ def build_plan(sweep: Sweep, sweep_file: str | Path | None = None, check_scenes:
                     test = Unit("test", key, str(folder), digest_of(digest, ref_digest), test_args, log,
                                 [fit.id, masks[(name, n)].id], labels,
                                 {"format": scene.format, "row": model.name if len(sweep.seeds) == 1
-                                 else f"{model.name} (seed {s})", "masks": masks[(name, n)].folder})
+                                 else f"{model.name} (seed {s})", "masks": masks[(name, n)].folder,
+                                 "lpips": evaluation.get("lpips", True),
+                                 "lpips_weights": evaluation.get("lpips_weights")})
                     fits.append(fit)
                     tests.append(test)
     units += list(masks.values()) + fits + tests
@@ -298,6 +301,9 @@ def build_plan(sweep: Sweep, sweep_file: str | Path | None = None, check_scenes:
                   "tables": sweep.tables,
                   "sweep_file": str(Path(sweep_file).resolve()) if sweep_file else None})
     units.append(table)
+    if sweep.wandb.mode is not None:
+        for unit in units:
+            unit.extra["wandb_mode"] = sweep.wandb.mode
     check_folders(units)
     return Plan(sweep, out, units, warnings)
 

@@ -433,3 +433,35 @@ def test_status_asks_slurm_and_cancel_cancels_what_is_queued_or_running(table1_s
     assert cancel.returncode == 0, cancel.stderr
     assert (bin_dir / "scancel.calls").read_text().split() == [fit, test0]
     assert f"cancelled 2 of {len(submitted)} job arrays: {fit} {test0}" in cancel.stdout
+
+
+def test_preflight_lists_every_problem_and_submits_nothing(tmp_path):
+    """A SLURM sweep whose scene lacks its poses file, whose tests need LPIPS weights that are not there, with no W&B
+    mode stated and an output under a file: one line per problem, exit status 2, no sbatch called, nothing written."""
+    configs = tiny_configs(tmp_path / "configs")
+    scene = synthetic_scenes(tmp_path / "data", n=1)[0]
+    (scene / "poses_bounds.npy").unlink()
+    lpips = tmp_path / "configs" / "lpips.yaml"
+    lpips.write_text(yaml.safe_dump({"evaluation": {"lpips": True, "lpips_weights": str(tmp_path / "no.npz")}}))
+    model_list = models(configs, names=("SimpleNeRF",))
+    model_list[0]["configs"].append(str(lpips))
+    (tmp_path / "a_file").write_text("")
+    path = write_sweep(tmp_path / "sweep.yaml", [{"path": str(scene), "reference_depth": "scene"}], [2], model_list,
+                       configs, tmp_path / "a_file" / "out", executor="slurm")
+    fake_sbatch(tmp_path / "bin")
+    env = {k: v for k, v in os.environ.items() if k != "WANDB_MODE"}
+    env.update(PATH=f"{tmp_path / 'bin'}:{os.environ['PATH']}", OMP_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, "-m", "simplenerf", "sweep", "--config", str(path)], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert lines[0] == "simplenerf: error: 6 problem(s) found before anything ran; nothing was submitted:", lines
+    assert lines[1] == f"  scenes[0] (scene0): {scene / 'poses_bounds.npy'} is missing or not readable (llff scenes " \
+                       "have it)"
+    assert lines[2].startswith(f"  LPIPS weights (--evaluation.lpips_weights {tmp_path / 'no.npz'}) cannot be found "
+                               "without network, as test scene0/2v/SimpleNeRF/seed0 needs them")
+    assert lines[3].startswith("  W&B mode not stated: set wandb.mode in the sweep file")
+    assert lines[4] == f"  output {tmp_path / 'a_file' / 'out'}: {tmp_path / 'a_file'} is a file, not a folder"
+    assert lines[5].startswith(f"  {tmp_path / 'a_file' / 'out'} is on this machine's own disk (/tmp)")
+    assert len(lines) == 7 and lines[6].startswith(f"  {scene} is on this machine's own disk"), lines
+    assert not (tmp_path / "bin" / "calls").exists()  # nothing submitted

@@ -1,13 +1,15 @@
 """Runs a plan's units with submitit (no scheduler of our own): what is done is skipped, the rest is submitted.
 
-- `slurm`: one job array per stage (`SlurmExecutor.map_array`), each with `afterok` dependencies on the arrays whose
-  outputs it reads (the table: `afterany`, it shows whatever was tested) and `--kill-on-invalid-dep=yes`, so a failed
-  job cancels what needs it instead of leaving it pending; run the sweep again to retry. The array's `%N` is
-  `resources.concurrent_jobs`. `--signal=USR1@90` is Lightning's requeue signal (`SLURMEnvironment(auto_requeue=True)`,
+- `slurm`: job arrays (`SlurmExecutor.map_array`, `slurm_arrays`) with per-task dependencies: a job waits for the
+  tasks whose outputs it reads and nothing else (`aftercorr` where two arrays line up task for task,
+  `afterok:<array>_<task>` otherwise; the table `afterany`, it shows whatever was tested), with
+  `--kill-on-invalid-dep=yes`, so a failed job cancels only what reads its output; run the sweep again to retry. Each
+  stage asks for its own resources (`Resources.for_stage`: the masks and the table no GPU); an array's `%N` is its
+  stage's `concurrent_jobs`. `--signal=USR1@90` is Lightning's requeue signal (`SLURMEnvironment(auto_requeue=True)`,
   see `simplenerf.experiments.jobs`); submitit's own preemption signal (USR2) is never sent, so only Lightning requeues.
   `--dry-run` writes the same arrays as self-contained sbatch scripts plus `submit.sh` instead (`write_slurm_scripts`).
 - `local`: the same graph on this machine, each job once the jobs it needs are done, `resources.concurrent_jobs`
-  submitit `LocalExecutor` jobs (processes) at a time.
+  submitit `LocalExecutor` jobs (processes) at a time, each job of a GPU stage on GPUs of its own (`GpuPool`).
 - `debug`: the same, in this process, one job after the other (submitit's `DebugExecutor`).
 
 A unit runs when it is not done (`is_done`) or something it needs runs; locally a unit whose needs did not finish is
@@ -18,6 +20,7 @@ files.
 from __future__ import annotations
 
 import json
+import os
 import shlex
 import sys
 import threading
@@ -27,7 +30,7 @@ from pathlib import Path
 
 from simplenerf.experiments.jobs import run_unit
 from simplenerf.experiments.plan import Plan, Unit
-from simplenerf.experiments.spec import STAGES, Resources
+from simplenerf.experiments.spec import STAGES, Resources, SweepError
 from simplenerf.experiments.state import read_state, read_status
 
 MANIFEST = "sweep.json"
@@ -80,28 +83,87 @@ def _quiet_run(unit: dict) -> str:
         return "failed"
 
 
-def run_here(plan: Plan, todo: list[Unit], executor: str, log=print) -> dict[str, str]:
+def visible_gpus() -> list[int]:
+    """This machine's GPUs a local sweep hands out: CUDA_VISIBLE_DEVICES when it is set (integer ids), else every
+    device torch sees."""
+    env = os.environ.get("CUDA_VISIBLE_DEVICES")
+    if env is not None and env.strip():
+        try:
+            return [int(x) for x in env.split(",") if x.strip()]
+        except ValueError:
+            raise SweepError(f"CUDA_VISIBLE_DEVICES={env}: a local sweep hands out GPUs by integer id; give ids, "
+                             "not UUIDs") from None
+    import torch
+
+    return list(range(torch.cuda.device_count()))
+
+
+class GpuPool:
+    """The local executor's GPUs: a job takes `n` free ones (waiting until they are free) and gives them back, so
+    that jobs running at the same time never share one (submitit's LocalExecutor sets the job's
+    CUDA_VISIBLE_DEVICES to them)."""
+
+    def __init__(self, gpus: list[int]) -> None:
+        self.free, self.all = list(gpus), list(gpus)
+        self.cond = threading.Condition()
+
+    def take(self, n: int) -> list[int]:
+        with self.cond:
+            self.cond.wait_for(lambda: len(self.free) >= n)
+            taken, self.free = self.free[:n], self.free[n:]
+            return taken
+
+    def give(self, gpus: list[int]) -> None:
+        with self.cond:
+            self.free += gpus
+            self.cond.notify_all()
+
+
+def run_here(plan: Plan, todo: list[Unit], executor: str, log=print, job_function=None) -> dict[str, str]:
     """The local and debug executors: the plan's graph as SLURM runs it, each job once the jobs it needs are done,
-    `concurrent_jobs` at a time (debug: one); returns unit id -> done / failed / blocked."""
+    `concurrent_jobs` at a time (debug: one); returns unit id -> done / failed / blocked. Locally, a job of a stage
+    with `gpus_per_job` GPUs gets that many of this machine's GPUs of its own (`visible_gpus`, CUDA_VISIBLE_DEVICES);
+    on a machine without a GPU every job runs on the CPU. `job_function` (tests): what each job runs instead of
+    `run_unit`."""
     import submitit
 
     logs = plan.output / "logs"
     resources = plan.sweep.resources
+    gpus = GpuPool([])
     if executor == "debug":
         ex = submitit.DebugExecutor(folder=logs)
         workers = 1
     else:
         ex = submitit.LocalExecutor(folder=logs)
-        # A local job is not cut by a time limit (a week); GPUs: the first gpus_per_job of this machine.
-        ex.update_parameters(timeout_min=7 * 24 * 60, gpus_per_node=resources.gpus_per_job)
+        ex.update_parameters(timeout_min=7 * 24 * 60)  # a local job is not cut by a time limit (a week)
         workers = resources.concurrent_jobs
+        gpus = GpuPool(visible_gpus())
+        for stage in dict.fromkeys(u.stage for u in todo):
+            wanted = resources.for_stage(stage).gpus_per_job
+            if gpus.all and wanted > len(gpus.all):
+                raise SweepError(f"resources: the {stage} jobs ask for {wanted} GPUs each; this machine has "
+                                 f"{len(gpus.all)} ({', '.join(map(str, gpus.all))})")
+        if not gpus.all and any(resources.for_stage(u.stage).gpus_per_job for u in todo):
+            log("no GPU on this machine: every job runs on the CPU")
+    function = job_function or (_quiet_run if executor == "debug" else run_unit)
     lock = threading.Lock()
     slots = threading.Semaphore(workers)  # jobs running at once
 
     def one(unit: Unit) -> str:
+        wanted = resources.for_stage(unit.stage).gpus_per_job if gpus.all else 0
+        mine = gpus.take(wanted) if wanted else []
+        try:
+            return _one(unit, mine)
+        finally:
+            gpus.give(mine)
+
+    def _one(unit: Unit, mine: list[int]) -> str:
         with lock:
-            job = ex.submit(_quiet_run if executor == "debug" else run_unit, unit.to_dict())
-        log(f"  {unit.stage} {unit.key}: started (job {job.job_id})")
+            if executor != "debug":
+                ex.update_parameters(gpus_per_node=len(mine), visible_gpus=mine)
+            job = ex.submit(function, unit.to_dict())
+        log(f"  {unit.stage} {unit.key}: started (job {job.job_id}" + (f", GPU {','.join(map(str, mine))}"
+                                                                      if mine else "") + ")")
         try:
             result = job.result()
         except Exception:  # the job's exception, or its process was killed

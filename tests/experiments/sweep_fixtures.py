@@ -119,3 +119,17 @@ def callbacks_override(tmp: Path, name: str, callback: str, step: int, keep_warm
     path = tmp / f"{name}.yaml"
     path.write_text(yaml.safe_dump({"trainer": {"callbacks": callbacks}}))
     return path
+
+
+def record_gpus(unit: dict) -> str:
+    """A stand-in job: writes the CUDA_VISIBLE_DEVICES it was given and when it ran to <folder>/gpus.json."""
+    import json
+    import os
+    import time
+
+    start = time.time()
+    time.sleep(1.0)
+    Path(unit["folder"]).mkdir(parents=True, exist_ok=True)
+    (Path(unit["folder"]) / "gpus.json").write_text(json.dumps(
+        {"cuda": os.environ.get("CUDA_VISIBLE_DEVICES"), "start": start, "end": time.time()}))
+    return "done"

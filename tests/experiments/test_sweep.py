@@ -32,6 +32,7 @@ from tests.experiments.sweep_fixtures import (
     Preempted,
     callbacks_override,
     models,
+    record_gpus,
     synthetic_scenes,
     tiny_configs,
     write_sweep,
@@ -465,3 +466,61 @@ def test_preflight_lists_every_problem_and_submits_nothing(tmp_path):
     assert lines[5].startswith(f"  {tmp_path / 'a_file' / 'out'} is on this machine's own disk (/tmp)")
     assert len(lines) == 7 and lines[6].startswith(f"  {scene} is on this machine's own disk"), lines
     assert not (tmp_path / "bin" / "calls").exists()  # nothing submitted
+
+
+def test_local_executor_gives_each_concurrent_job_its_own_gpu(tmp_path, monkeypatch):
+    """A machine with 2 GPUs (torch's device count faked), 3 jobs at a time, 1 GPU per fit: no two fits running at
+    once share a GPU, so at most 2 run together; a masks job (no GPU) sees none."""
+    from simplenerf.experiments.executors import run_here
+    from simplenerf.experiments.plan import Plan, Unit
+    from simplenerf.experiments.spec import Resources, Sweep
+
+    monkeypatch.delenv("CUDA_VISIBLE_DEVICES", raising=False)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
+    sweep = Sweep(name="gpus", output=str(tmp_path), scenes=[], views=[2], models=[],
+                  resources=Resources(gpus_per_job=1, concurrent_jobs=3))
+    units = [Unit("fit", f"run{i}", str(tmp_path / f"run{i}"), "d") for i in range(5)]
+    units.append(Unit("masks", "m", str(tmp_path / "masks"), "d"))
+    outcome = run_here(Plan(sweep, tmp_path, units), units, "local", log=lambda *a: None,
+                       job_function=record_gpus)
+    assert set(outcome.values()) == {"done"}
+    runs = [json.loads((tmp_path / f"run{i}" / "gpus.json").read_text()) for i in range(5)]
+    assert all(r["cuda"] in ("0", "1") for r in runs), runs
+    for i, a in enumerate(runs):
+        for b in runs[i + 1 :]:
+            if a["start"] < b["end"] and b["start"] < a["end"]:
+                assert a["cuda"] != b["cuda"], (a, b)
+    assert {r["cuda"] for r in runs} == {"0", "1"}
+    assert json.loads((tmp_path / "masks" / "gpus.json").read_text())["cuda"] == ""
+
+
+def test_local_executor_refuses_more_gpus_per_job_than_the_machine_has(tmp_path, monkeypatch):
+    from simplenerf.experiments.executors import run_here
+    from simplenerf.experiments.plan import Plan, Unit
+    from simplenerf.experiments.spec import Resources, Sweep
+
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "3,5")  # two GPUs handed to this sweep
+    sweep = Sweep(name="gpus", output=str(tmp_path), scenes=[], views=[2], models=[],
+                  resources=Resources(gpus_per_job=1, stages={"fit": {"gpus_per_job": 4}}))
+    units = [Unit("fit", "run", str(tmp_path / "run"), "d")]
+    with pytest.raises(SweepError, match=r"the fit jobs ask for 4 GPUs each; this machine has 2 \(3, 5\)"):
+        run_here(Plan(sweep, tmp_path, units), units, "local", log=lambda *a: None, job_function=record_gpus)
+
+
+def test_resources_per_stage_from_the_sweep_file(tmp_path):
+    """The sweep's resources are the GPU stages'; the masks and the table default to no GPU (the table: 1 CPU, 4 GB,
+    30 min); `resources.stages` overrides any stage, its slurm_args added to the sweep's; a wrong stage name stops."""
+    text = ("name: x\noutput: out\nscenes: [{path: a}]\nviews: [2]\nmodels: [{name: A, configs: [a.yaml]}]\n"
+            "resources:\n  gpus_per_job: 1\n  mem_gb: 32\n  slurm_args: {qos: high}\n  stages:\n"
+            "    masks: {partition: cpu, cpus_per_job: 4}\n    fit: {time_limit_min: 720, slurm_args: {constraint: a100}}\n")
+    path = tmp_path / "sweep.yaml"
+    path.write_text(text)
+    resources = load_sweep(path).resources
+    masks, fit, table, test = (resources.for_stage(s) for s in ("masks", "fit", "table", "test"))
+    assert (masks.gpus_per_job, masks.cpus_per_job, masks.partition, masks.mem_gb) == (0, 4, "cpu", 32)
+    assert (fit.gpus_per_job, fit.time_limit_min, fit.slurm_args) == (1, 720, {"qos": "high", "constraint": "a100"})
+    assert (table.gpus_per_job, table.cpus_per_job, table.mem_gb, table.time_limit_min) == (0, 1, 4, 30)
+    assert (test.gpus_per_job, test.time_limit_min, test.slurm_args) == (1, 60, {"qos": "high"})
+    path.write_text(text.replace("    masks:", "    maks:"))
+    with pytest.raises(SweepError, match=r"resources\.stages: 'maks' is not a stage \(dense, depth, masks, fit"):
+        load_sweep(path)

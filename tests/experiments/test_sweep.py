@@ -512,7 +512,8 @@ def test_resources_per_stage_from_the_sweep_file(tmp_path):
     30 min); `resources.stages` overrides any stage, its slurm_args added to the sweep's; a wrong stage name stops."""
     text = ("name: x\noutput: out\nscenes: [{path: a}]\nviews: [2]\nmodels: [{name: A, configs: [a.yaml]}]\n"
             "resources:\n  gpus_per_job: 1\n  mem_gb: 32\n  slurm_args: {qos: high}\n  stages:\n"
-            "    masks: {partition: cpu, cpus_per_job: 4}\n    fit: {time_limit_min: 720, slurm_args: {constraint: a100}}\n")
+            "    masks: {partition: cpu, cpus_per_job: 4}\n"
+            "    fit: {time_limit_min: 720, slurm_args: {constraint: a100}}\n")
     path = tmp_path / "sweep.yaml"
     path.write_text(text)
     resources = load_sweep(path).resources

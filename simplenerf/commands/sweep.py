@@ -16,7 +16,7 @@ from pathlib import Path
 
 from simplenerf.commands import CommandParser
 from simplenerf.experiments.executors import run_here, submit_slurm, units_to_run, write_manifest, write_slurm_scripts
-from simplenerf.experiments.plan import build_plan
+from simplenerf.experiments.plan import build_plan, link_reused
 from simplenerf.experiments.preflight import PreflightError, preflight
 from simplenerf.experiments.spec import EXECUTORS, STAGES, SweepError, load_sweep
 from simplenerf.experiments.state import process_alive, read_state, read_status
@@ -56,6 +56,7 @@ def main(argv: list[str]) -> None:
     executor = args.executor or sweep.executor
     start = time.monotonic()
     plan = build_plan(sweep, args.config, check_scenes=not args.dry_run)
+    link_reused(plan)
     for warning in plan.warnings:
         print(f"warning: {warning}")
     todo = units_to_run(plan)

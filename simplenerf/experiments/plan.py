@@ -323,3 +323,41 @@ def check_folders(units: list[Unit]) -> None:
         if state is None and any((folder / "checkpoints").glob("*.ckpt")):
             raise SweepError(f"{unit.stage} {unit.key}: {folder} has checkpoints the sweep did not write: move them "
                              "away or give the sweep another output folder")
+
+
+def link_reused(plan: Plan, log=print) -> list[str]:
+    """Fits of this sweep whose digest is a done fit in one of `sweep.reuse`'s output folders (their `sweep.json`):
+    this sweep's run folder gets a link to that run's checkpoints (`checkpoints -> <other run>/checkpoints`) and a fit
+    state `done` naming it (`reused_from`), so the fit is not trained again; its test runs here, into this sweep's
+    folder (the other sweep's folder is only read). Returns the linked unit ids."""
+    import json
+    import os
+
+    from simplenerf.experiments.state import write_state
+
+    done: dict[str, Path] = {}
+    for other in plan.sweep.reuse:
+        manifest = Path(other) / "sweep.json"
+        if not manifest.is_file():
+            plan.warnings.append(f"reuse: {other} has no sweep.json (not a sweep folder, or not run yet): nothing "
+                                 "reused from it")
+            continue
+        for unit in json.loads(manifest.read_text())["units"]:
+            state = read_state(Path(unit["folder"]), "fit") if unit["stage"] == "fit" else None
+            if state and state.get("status") == "done" and state.get("digest") == unit["digest"]:
+                done.setdefault(unit["digest"], Path(unit["folder"]))
+    linked = []
+    for unit in plan.stage("fit"):
+        source = done.get(unit.digest)
+        folder = Path(unit.folder)
+        if source is None or source.resolve() == folder.resolve() or read_state(folder, "fit") is not None:
+            continue
+        folder.mkdir(parents=True, exist_ok=True)
+        if not (folder / "checkpoints").exists():
+            os.symlink(source.resolve() / "checkpoints", folder / "checkpoints", target_is_directory=True)
+        state = dict(read_state(source, "fit") or {})
+        state.update(reused_from=str(source.resolve()), key=unit.key)
+        write_state(folder, "fit", state)
+        linked.append(unit.id)
+        log(f"  fit {unit.key}: reused from {source} (the same settings digest {unit.digest})")
+    return linked

@@ -525,3 +525,45 @@ def test_resources_per_stage_from_the_sweep_file(tmp_path):
     path.write_text(text.replace("    masks:", "    maks:"))
     with pytest.raises(SweepError, match=r"resources\.stages: 'maks' is not a stage \(dense, depth, masks, fit"):
         load_sweep(path)
+
+
+def test_a_sweep_reuses_the_fits_another_sweep_has(tmp_path):
+    """Sweep A trains SimpleNeRF; sweep B (SimpleNeRF and DS-NeRF, `reuse: [A's output]`) links A's SimpleNeRF fit
+    (same settings digest) instead of training it, tests it into its own folder, and trains only DS-NeRF."""
+    configs = tiny_configs(tmp_path / "configs", steps=2)
+    scene = synthetic_scenes(tmp_path / "data", n=1)[0]
+    scenes = [{"path": str(scene), "reference_depth": "scene"}]
+    a = write_sweep(tmp_path / "a.yaml", scenes, [2], models(configs, names=("SimpleNeRF",)), configs, tmp_path / "a")
+    main(["sweep", "--config", str(a)])
+    a_run = tmp_path / "a" / "runs" / "scene0" / "2v" / "SimpleNeRF" / "seed0"
+    a_ckpts = {p: p.stat().st_mtime_ns for p in (a_run / "checkpoints").glob("*.ckpt")}
+    a_summary = (a_run / "test" / "summary.json").stat().st_mtime_ns
+    b = write_sweep(tmp_path / "b.yaml", scenes, [2], models(configs), configs, tmp_path / "b",
+                    reuse=[str(tmp_path / "a")])
+    plan = build_plan(load_sweep(b), b)
+    assert [u.id for u in units_to_run(plan) if u.stage == "fit"] == ["fit:scene0/2v/SimpleNeRF/seed0",
+                                                                      "fit:scene0/2v/DS-NeRF/seed0"]
+    main(["sweep", "--config", str(b)])
+    b_run = tmp_path / "b" / "runs" / "scene0" / "2v" / "SimpleNeRF" / "seed0"
+    assert (b_run / "checkpoints").resolve() == (a_run / "checkpoints").resolve()
+    assert read_state(b_run, "fit")["reused_from"] == str(a_run.resolve())
+    assert (b_run / "test" / "summary.json").is_file()  # tested here
+    assert {p: p.stat().st_mtime_ns for p in (a_run / "checkpoints").glob("*.ckpt")} == a_ckpts  # not retrained
+    assert (a_run / "test" / "summary.json").stat().st_mtime_ns == a_summary  # A's folder only read
+    assert read_state(tmp_path / "b" / "runs" / "scene0" / "2v" / "DS-NeRF" / "seed0", "fit")["status"] == "done"
+    assert "| SimpleNeRF |" in (tmp_path / "b" / "results.md").read_text()
+
+
+def test_the_ablations_sweep_reuses_the_13_simplenerf_fits_of_table1(monkeypatch):
+    """configs/sweeps/ablations_table3.yaml names the Table 1 sweeps in `reuse`, and its SimpleNeRF fits have the
+    settings digests of Table 1's 2-view SimpleNeRF fits (8 LLFF scenes + 5 videos): they would be linked."""
+    monkeypatch.chdir(REPO)
+    digests = {}
+    for name in ("llff_table1", "realestate_table1", "ablations_table3"):
+        path = REPO / "configs" / "sweeps" / f"{name}.yaml"
+        sweep = load_sweep(path)
+        digests[name] = {u.digest: u.key for u in build_plan(sweep, path, check_scenes=False).stage("fit")}
+    assert sweep.reuse == ["runs/sweeps/llff_table1", "runs/sweeps/realestate_table1"]
+    table1 = digests["llff_table1"].keys() | digests["realestate_table1"].keys()
+    shared = sorted(key for digest, key in digests["ablations_table3"].items() if digest in table1)
+    assert len(shared) == 13 and all(key.endswith("/2v/SimpleNeRF/seed0") for key in shared)

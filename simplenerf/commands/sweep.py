@@ -4,7 +4,8 @@ what failed (simplenerf.experiments, docs/experiments.md), e.g.
 
     simplenerf sweep --config configs/sweeps/cpu_grid.yaml --executor local
     simplenerf sweep --config configs/sweeps/llff_table1.yaml --executor slurm --dry-run
-    simplenerf sweep status SWEEP_DIR                 (every job's state)
+    simplenerf sweep status SWEEP_DIR                 (every job's state; SLURM's too when squeue / sacct are here)
+    simplenerf sweep cancel SWEEP_DIR                 (scancel what of its SLURM submission is queued or running)
     simplenerf sweep job SWEEP_DIR STAGE INDEX        (what the sbatch scripts of --dry-run run)
 """
 
@@ -15,8 +16,9 @@ from pathlib import Path
 
 from simplenerf.commands import CommandParser
 from simplenerf.experiments.executors import run_here, submit_slurm, units_to_run, write_manifest, write_slurm_scripts
-from simplenerf.experiments.plan import STAGES, build_plan
-from simplenerf.experiments.spec import EXECUTORS, SweepError, load_sweep
+from simplenerf.experiments.plan import build_plan, link_reused
+from simplenerf.experiments.preflight import PreflightError, preflight
+from simplenerf.experiments.spec import EXECUTORS, STAGES, SweepError, load_sweep
 from simplenerf.experiments.state import process_alive, read_state, read_status
 from simplenerf.experiments.status import status_table
 
@@ -37,6 +39,13 @@ def main(argv: list[str]) -> None:
             raise SystemExit("usage: simplenerf sweep status SWEEP_DIR")
         print(status_table(Path(argv[1])))
         return
+    if argv[:1] == ["cancel"]:
+        from simplenerf.experiments.slurm import cancel
+
+        if len(argv) != 2:
+            raise SystemExit("usage: simplenerf sweep cancel SWEEP_DIR")
+        cancel(Path(argv[1]))
+        return
     if argv[:1] == ["job"]:
         from simplenerf.experiments.jobs import main as job
 
@@ -47,13 +56,17 @@ def main(argv: list[str]) -> None:
     executor = args.executor or sweep.executor
     start = time.monotonic()
     plan = build_plan(sweep, args.config, check_scenes=not args.dry_run)
+    link_reused(plan)
     for warning in plan.warnings:
         print(f"warning: {warning}")
     todo = units_to_run(plan)
     counts = ", ".join(f"{sum(u.stage == s for u in todo)}/{len(plan.stage(s))} {s}" for s in STAGES
                        if plan.stage(s))
     print(f"sweep {sweep.name}: {len(plan.units)} jobs in {plan.output}; to run: {counts}")
+    problems = preflight(plan, executor)
     if args.dry_run:
+        for problem in problems:
+            print(f"warning: a submission would stop here: {problem}")
         for unit in todo:
             print(f"  {unit.stage} {unit.key}" + (f"  (after {', '.join(unit.needs)})" if unit.needs and
                                                   unit.stage != "table" else ""))
@@ -68,6 +81,9 @@ def main(argv: list[str]) -> None:
         state = read_state(Path(live[0].folder), live[0].stage) or {}
         raise SweepError(f"{live[0].stage} {live[0].key} is running (process {state.get('pid')} on this machine): "
                          "one sweep at a time in a sweep folder; wait for it, or stop it and run the sweep again")
+    if problems:
+        raise PreflightError(f"{len(problems)} problem(s) found before anything ran; nothing was submitted:\n"
+                             + "\n".join(f"  {p}" for p in problems))
     write_manifest(plan)
     if executor == "slurm":
         submit_slurm(plan, todo)

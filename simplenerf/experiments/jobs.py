@@ -153,6 +153,8 @@ def run_unit(unit: Unit | dict, raise_on_failure: bool = True) -> str:
     `raise_on_failure`, so that the job's exit status says it: submitit and SLURM see a failed job)."""
     unit = Unit.from_dict(unit) if isinstance(unit, dict) else unit
     folder = Path(unit.folder)
+    if unit.extra.get("wandb_mode"):  # the sweep file's wandb.mode (W&B reads it when the run starts)
+        os.environ["WANDB_MODE"] = unit.extra["wandb_mode"]
     previous = read_state(folder, unit.stage) or {}
     same = previous.get("digest") == unit.digest
     # An attempt killed without a word (its state still says running) counts until its newest file.

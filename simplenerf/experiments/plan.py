@@ -33,10 +33,17 @@ from pathlib import Path
 
 import yaml
 
-from simplenerf.experiments.spec import SCENE_DEPTH, SceneEntry, Sweep, SweepError, configs_for, scene_name, slug
+from simplenerf.experiments.spec import (
+    SCENE_DEPTH,
+    SceneEntry,
+    Sweep,
+    SweepError,
+    configs_for,
+    scene_name,
+    slug,
+)
 from simplenerf.experiments.state import read_state
 
-STAGES = ("dense", "depth", "masks", "fit", "test", "table")
 # Left out of a digest: where things are written and how they are logged, not what is computed.
 VOLATILE = ("config", "ckpt_path", "overwrite", "progress", "trainer.default_root_dir", "trainer.logger",
             "checkpoint.dirpath", "data.init_args.sparse_depth_cache", "trainer.enable_progress_bar")
@@ -255,6 +262,7 @@ def build_plan(sweep: Sweep, sweep_file: str | Path | None = None, check_scenes:
                      str(s0)]
             config = resolved_for_scene(first, str(Path(scene.path).resolve()), entry, cache)
             max_steps = config.get("trainer", {}).get("max_steps")
+            evaluation = config.get("evaluation") or {}
             for n in sweep.views:
                 ref_folder, ref_digest, ref_unit = depth_of[(name, n)]
                 if (name, n) not in masks:
@@ -281,15 +289,21 @@ def build_plan(sweep: Sweep, sweep_file: str | Path | None = None, check_scenes:
                     test = Unit("test", key, str(folder), digest_of(digest, ref_digest), test_args, log,
                                 [fit.id, masks[(name, n)].id], labels,
                                 {"format": scene.format, "row": model.name if len(sweep.seeds) == 1
-                                 else f"{model.name} (seed {s})"})
+                                 else f"{model.name} (seed {s})", "masks": masks[(name, n)].folder,
+                                 "lpips": evaluation.get("lpips", True),
+                                 "lpips_weights": evaluation.get("lpips_weights")})
                     fits.append(fit)
                     tests.append(test)
     units += list(masks.values()) + fits + tests
     table = Unit("table", sweep.name, str(out), digest_of([t.digest for t in tests], sweep.tables), [], [],
                  [t.id for t in tests], {"scene": "", "views": "", "model": "", "seed": ""},
-                 {"runs": [[t.extra["format"], t.extra["row"], t.folder] for t in tests], "tables": sweep.tables,
+                 {"runs": [[t.extra["format"], t.extra["row"], t.folder, t.key, t.extra["masks"]] for t in tests],
+                  "tables": sweep.tables,
                   "sweep_file": str(Path(sweep_file).resolve()) if sweep_file else None})
     units.append(table)
+    if sweep.wandb.mode is not None:
+        for unit in units:
+            unit.extra["wandb_mode"] = sweep.wandb.mode
     check_folders(units)
     return Plan(sweep, out, units, warnings)
 
@@ -309,3 +323,41 @@ def check_folders(units: list[Unit]) -> None:
         if state is None and any((folder / "checkpoints").glob("*.ckpt")):
             raise SweepError(f"{unit.stage} {unit.key}: {folder} has checkpoints the sweep did not write: move them "
                              "away or give the sweep another output folder")
+
+
+def link_reused(plan: Plan, log=print) -> list[str]:
+    """Fits of this sweep whose digest is a done fit in one of `sweep.reuse`'s output folders (their `sweep.json`):
+    this sweep's run folder gets a link to that run's checkpoints (`checkpoints -> <other run>/checkpoints`) and a fit
+    state `done` naming it (`reused_from`), so the fit is not trained again; its test runs here, into this sweep's
+    folder (the other sweep's folder is only read). Returns the linked unit ids."""
+    import json
+    import os
+
+    from simplenerf.experiments.state import write_state
+
+    done: dict[str, Path] = {}
+    for other in plan.sweep.reuse:
+        manifest = Path(other) / "sweep.json"
+        if not manifest.is_file():
+            plan.warnings.append(f"reuse: {other} has no sweep.json (not a sweep folder, or not run yet): nothing "
+                                 "reused from it")
+            continue
+        for unit in json.loads(manifest.read_text())["units"]:
+            state = read_state(Path(unit["folder"]), "fit") if unit["stage"] == "fit" else None
+            if state and state.get("status") == "done" and state.get("digest") == unit["digest"]:
+                done.setdefault(unit["digest"], Path(unit["folder"]))
+    linked = []
+    for unit in plan.stage("fit"):
+        source = done.get(unit.digest)
+        folder = Path(unit.folder)
+        if source is None or source.resolve() == folder.resolve() or read_state(folder, "fit") is not None:
+            continue
+        folder.mkdir(parents=True, exist_ok=True)
+        if not (folder / "checkpoints").exists():
+            os.symlink(source.resolve() / "checkpoints", folder / "checkpoints", target_is_directory=True)
+        state = dict(read_state(source, "fit") or {})
+        state.update(reused_from=str(source.resolve()), key=unit.key)
+        write_state(folder, "fit", state)
+        linked.append(unit.id)
+        log(f"  fit {unit.key}: reused from {source} (the same settings digest {unit.digest})")
+    return linked

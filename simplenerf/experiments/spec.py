@@ -14,8 +14,9 @@ every format.
 
 from __future__ import annotations
 
+import copy
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from jsonargparse import ArgumentParser, Namespace
@@ -24,6 +25,8 @@ from simplenerf.errors import SimpleNeRFError
 
 FORMATS = ("llff", "realestate")
 EXECUTORS = ("slurm", "local", "debug")
+STAGES = ("dense", "depth", "masks", "fit", "test", "table")
+WANDB_MODES = ("online", "offline", "disabled")
 SCENE_DEPTH = "scene"
 """`reference_depth: scene`: the scene's own depth (`<scene>/depths_<factor>/`, e.g. the synthetic scene's exact
 depth), no dense NeRF."""
@@ -87,11 +90,40 @@ class Budget:
 
 
 @dataclass
+class StageResources:
+    """One stage's resources where they differ from the sweep's (`resources.stages.<stage>`); null keeps the value
+    of the stage's default (STAGE_DEFAULTS), else the sweep's."""
+
+    gpus_per_job: int | None = None
+    cpus_per_job: int | None = None
+    mem_gb: float | None = None
+    time_limit_min: int | None = None
+    partition: str | None = None
+    account: str | None = None
+    concurrent_jobs: int | None = None
+    setup: list[str] | None = None
+    """Replaces the sweep's setup lines for this stage."""
+    slurm_args: dict[str, str] | None = None
+    """Added to (and overriding) the sweep's slurm_args for this stage."""
+
+
+STAGE_DEFAULTS: dict[str, dict] = {
+    # The visibility masks are numpy on the CPU (simplenerf.evaluation.visibility) and the table reads JSON files:
+    # neither holds a GPU. dense, depth, fit and test use the GPU and take the sweep's resources as they are.
+    "masks": {"gpus_per_job": 0},
+    "table": {"gpus_per_job": 0, "cpus_per_job": 1, "mem_gb": 4, "time_limit_min": 30},
+}
+"""Per stage, what differs from the sweep's `resources` unless the sweep file's `resources.stages` says otherwise."""
+
+
+@dataclass
 class Resources:
-    """What each job gets, and how many run at once."""
+    """What each job gets, and how many run at once: the values of the GPU stages (dense, depth, fit, test); the
+    masks and the table have defaults of their own (STAGE_DEFAULTS: no GPU), and `stages` overrides any stage."""
 
     gpus_per_job: int = 0
-    """GPUs per job (SLURM --gpus-per-node; 0: a CPU job)."""
+    """GPUs per job (SLURM --gpus-per-node; local: that many of this machine's GPUs per job, CUDA_VISIBLE_DEVICES;
+    0: a CPU job)."""
     cpus_per_job: int = 1
     """CPUs per job (SLURM --cpus-per-task)."""
     mem_gb: float | None = None
@@ -108,6 +140,26 @@ class Resources:
     """Shell lines run before each SLURM job (e.g. `source .venv/bin/activate`)."""
     slurm_args: dict[str, str] = field(default_factory=dict)
     """More sbatch options, e.g. {qos: high, constraint: a100}."""
+    stages: dict[str, StageResources] = field(default_factory=dict)
+    """Per stage (dense, depth, masks, fit, test, table), what differs, e.g. {masks: {partition: cpu, cpus_per_job:
+    4}, fit: {time_limit_min: 720}}."""
+
+    def __post_init__(self) -> None:
+        self.stages = {k: v if isinstance(v, StageResources) else StageResources(**(v or {}))
+                       for k, v in (self.stages or {}).items()}
+
+    def for_stage(self, stage: str) -> Resources:
+        """The resources of one stage's jobs: the sweep's, then the stage's defaults, then `stages.<stage>`."""
+        values = {f.name: copy.deepcopy(getattr(self, f.name)) for f in fields(self) if f.name != "stages"}
+        values.update(STAGE_DEFAULTS.get(stage, {}))
+        own = self.stages.get(stage)
+        if own is not None:
+            for f in fields(own):
+                value = getattr(own, f.name)
+                if value is None:
+                    continue
+                values[f.name] = {**values["slurm_args"], **value} if f.name == "slurm_args" else copy.deepcopy(value)
+        return Resources(**values)
 
 
 @dataclass
@@ -117,6 +169,10 @@ class Wandb:
     project: str = "simplenerf-sweeps"
     group: str | None = None
     """The runs' group (default: the sweep's name)."""
+    mode: str | None = None
+    """online, offline or disabled: every job's WANDB_MODE. A SLURM sweep must say it (the pre-flight stops without
+    it, or without WANDB_MODE in the environment): offline when the compute nodes cannot reach W&B (then `wandb sync`
+    the runs' wandb/ folders from a machine that can)."""
 
 
 @dataclass
@@ -141,6 +197,9 @@ class Sweep:
     """Per scene format, the paper's table the results sit beside (simplenerf.reporting.paper_scores.TABLES: llff,
     realestate, llff-ablations, realestate-ablations)."""
     wandb: Wandb = field(default_factory=Wandb)
+    reuse: list[str] = field(default_factory=list)
+    """Output folders of other sweeps: a fit whose digest (its resolved config) is done there is linked into this sweep
+    instead of trained again (its checkpoints; the test runs here), e.g. the ablations' SimpleNeRF rows from Table 1."""
 
 
 def sweep_parser() -> ArgumentParser:
@@ -226,8 +285,19 @@ def check_values(sweep: Sweep, path: Path) -> None:
         if fmt not in FORMATS or table not in TABLES:
             raise SweepError(f"{path}: tables: {fmt}: {table} (formats: {', '.join(FORMATS)}; tables: "
                              f"{', '.join(TABLES)})")
-    if sweep.resources.concurrent_jobs < 1:
-        raise SweepError(f"{path}: resources.concurrent_jobs must be at least 1")
+    if sweep.wandb.mode is not None and sweep.wandb.mode not in WANDB_MODES:
+        raise SweepError(f"{path}: wandb.mode {sweep.wandb.mode!r} is not one of {', '.join(WANDB_MODES)}")
+    for stage in sweep.resources.stages:
+        if stage not in STAGES:
+            raise SweepError(f"{path}: resources.stages: {stage!r} is not a stage ({', '.join(STAGES)})")
+    for stage in STAGES:
+        res = sweep.resources.for_stage(stage)
+        where = "resources" if stage not in sweep.resources.stages else f"resources.stages.{stage}"
+        if res.concurrent_jobs < 1:
+            raise SweepError(f"{path}: {where}.concurrent_jobs must be at least 1")
+        if res.gpus_per_job < 0 or res.cpus_per_job < 1 or res.time_limit_min < 1:
+            raise SweepError(f"{path}: {where}: gpus_per_job {res.gpus_per_job}, cpus_per_job {res.cpus_per_job}, "
+                             f"time_limit_min {res.time_limit_min}: expected gpus >= 0, cpus >= 1, minutes >= 1")
 
 
 def scene_name(scene: SceneEntry) -> str:

@@ -1,12 +1,16 @@
 """`simplenerf sweep status SWEEP_DIR`: every job of a sweep, read from its folders (the plan in `<sweep>/sweep.json`,
 each job's `<folder>/.sweep/<stage>.json`), no database: stage, scene, views, model, seed, status (pending, running,
-stopped: its process is gone, done, failed with its error line), training steps done and wall time."""
+stopped: its process is gone, done, failed with its error line), training steps done and wall time. For a sweep
+submitted to SLURM, SLURM's own word where the job's files cannot have it (`simplenerf.experiments.slurm`): queued
+(with squeue's reason), and how a task ended that its job could not record: cancelled, timeout, out_of_memory,
+node_fail, ... with the job id."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from simplenerf.experiments.executors import MANIFEST, is_done, read_manifest
+from simplenerf.experiments.slurm import ENDED_BADLY, slurm_states, submitted_jobs
 from simplenerf.experiments.spec import SweepError
 from simplenerf.experiments.state import checkpoint_steps, read_status, wall_time
 
@@ -24,6 +28,8 @@ def status_rows(folder: Path) -> list[dict[str, str]]:
     if not (Path(folder) / MANIFEST).is_file():
         raise SweepError(f"{folder} is not a sweep folder (no {MANIFEST}; `simplenerf sweep --config FILE` writes it)")
     _, units = read_manifest(Path(folder))
+    jobs = submitted_jobs(Path(folder))
+    slurm = slurm_states(list(jobs.values())) if jobs else None
     rows = []
     for unit in units:
         status, state = read_status(Path(unit.folder), unit.stage, unit.digest)
@@ -42,7 +48,23 @@ def status_rows(folder: Path) -> list[dict[str, str]]:
                      "wall": _wall(wall_time(status, state, Path(unit.folder))) if status != "pending" else "",
                      "job": str(state.get("job_id") or "") if status != "pending" else "",
                      "error": (state.get("error") or "") if status in ("failed", "stopped") else ""})
+        job = jobs.get(unit.id)
+        said = slurm.get(job) if slurm and job else None
+        if said is not None and status != "done":
+            _slurm_row(rows[-1], said, job, status)
     return rows
+
+
+def _slurm_row(row: dict[str, str], said, job: str, status: str) -> None:
+    """A row of a unit that is not done, with SLURM's state of its task."""
+    if said.state in ("PENDING", "REQUEUED"):
+        row.update(status="queued", job=job, error=f"SLURM: {said.state} ({said.detail})" if said.detail else "")
+    elif said.state == "RUNNING":
+        row.update(status="running", job=job)
+    elif said.state in ENDED_BADLY:
+        own = f"; {row['error']}" if row["error"] else ""
+        row.update(status=said.state.lower(), job=job, error=f"SLURM: {said.state}"
+                   + (f", {said.detail}" if said.detail else "") + own)
 
 
 def status_table(folder: Path) -> str:

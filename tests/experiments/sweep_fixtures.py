@@ -93,6 +93,17 @@ class RequeueSignalAt(Callback):
             raise Preempted(f"preempted at step {self.step}")
 
 
+class FailAt(Callback):
+    """Raises RuntimeError("made to fail at step N") when training reaches `step`: a fit that fails with an error."""
+
+    def __init__(self, step: int, marker: str) -> None:
+        self.step = step
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
+        if trainer.global_step == self.step:
+            raise RuntimeError(f"made to fail at step {self.step}")
+
+
 class Preempted(RuntimeError):
     pass
 
@@ -108,3 +119,17 @@ def callbacks_override(tmp: Path, name: str, callback: str, step: int, keep_warm
     path = tmp / f"{name}.yaml"
     path.write_text(yaml.safe_dump({"trainer": {"callbacks": callbacks}}))
     return path
+
+
+def record_gpus(unit: dict) -> str:
+    """A stand-in job: writes the CUDA_VISIBLE_DEVICES it was given and when it ran to <folder>/gpus.json."""
+    import json
+    import os
+    import time
+
+    start = time.time()
+    time.sleep(1.0)
+    Path(unit["folder"]).mkdir(parents=True, exist_ok=True)
+    (Path(unit["folder"]) / "gpus.json").write_text(json.dumps(
+        {"cuda": os.environ.get("CUDA_VISIBLE_DEVICES"), "start": start, "end": time.time()}))
+    return "done"

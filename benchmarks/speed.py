@@ -1,8 +1,8 @@
 """Seconds per training step and peak memory of a configured model on this machine (`simplenerf benchmark`; the
 scripts in benchmarks/ build on it).
 
-Everything starts from the public CLI (`simplenerf.run.cli.make_cli(args, run=False)`): the model and data module are the
-ones `simplenerf fit` would build, batches come from the data module, and Lightning runs the step (precision,
+Everything starts from the public CLI (`simplenerf.run.cli.make_cli(args, run=False)`): the model and data module are
+the ones `simplenerf fit` would build, batches come from the data module, and Lightning runs the step (precision,
 accelerator). The config's own trainer callbacks are NOT used, the warm-up `LossWeightSchedule` among them: every
 loss is computed at its configured weight, i.e. the cost of a step after the paper's 10k-step warm-up (the release
 computes its masked losses at weight 0 too, so this is also what the release pays from step 0).

@@ -6,8 +6,8 @@ A term has a `name` (its value is logged as `train/loss_<name>`, its weight as `
 sparse-depth rays, or none: a regulariser, evaluated once per step) and a `weight`. A term whose weight is 0 is not
 computed (during the warm-up the masked terms cost nothing, not even their masks).
 
-A ray term's value is a mean over the rays it reads, so a batch may be rendered in parts (`method.module.SimpleNeRF`): the
-parts' values, each weighted by its share of the batch's rays of that kind, sum to the whole batch's value.
+A ray term's value is a mean over the rays it reads, so a batch may be rendered in parts (`method.module.SimpleNeRF`):
+the parts' values, each weighted by its share of the batch's rays of that kind, sum to the whole batch's value.
 """
 
 from __future__ import annotations

@@ -23,7 +23,6 @@ import sys
 from pathlib import Path
 from typing import Any, NoReturn
 
-import yaml
 from jsonargparse import lazy_instance
 from lightning.pytorch import LightningDataModule, Trainer
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
@@ -56,6 +55,7 @@ from simplenerf.run.checks import (
     read_checkpoint,
     resolve_checkpoint,
 )
+from simplenerf.run.config_files import FIT_ONLY_KEYS, SUBCOMMAND_KEYS, check_config_files, without_subcommand_keys
 from simplenerf.run.console import PROG, HeldLogs, parser_error_line
 from simplenerf.run.lock import command_line, lock_run_folder
 from simplenerf.run.loggers import WandbLogger
@@ -63,7 +63,6 @@ from simplenerf.run.memory import reuse_freed_memory
 from simplenerf.run.resume import (
     TEST_KEYS,
     RunRecord,
-    current_class_paths,
     describe_checkpoint,
     recorded_settings,
     run_settings,
@@ -136,6 +135,8 @@ class SimpleNeRFCLI(LightningCLI):
         parser.link_arguments("data.init_args.near", "model.nerf.init_args.near")
 
     def _prepare_subcommand_parser(self, klass: type, subcommand: str, **kwargs: Any) -> LightningArgumentParser:
+        # The one private override left: no public hook of LightningCLI (add_arguments_to_parser, init_parser) is
+        # told which subcommand's parser it builds, and these options belong to fit (and test) alone.
         parser = super()._prepare_subcommand_parser(klass, subcommand, **kwargs)
         if subcommand == "fit":
             parser.add_argument(
@@ -180,7 +181,35 @@ class SimpleNeRFCLI(LightningCLI):
                 folders.append(Path(callback.output_dir).parent)
         return list(dict.fromkeys(folders))
 
-    def _run_subcommand(self, subcommand: str) -> None:
+    # LightningCLI's public hooks around a subcommand: `before_<subcommand>` runs first, then the CLI's method named
+    # after the subcommand (in place of the trainer's) with the subcommand's arguments.
+    def before_fit(self) -> None:
+        self.prepare("fit")
+
+    def before_validate(self) -> None:
+        self.prepare("validate")
+
+    def before_test(self) -> None:
+        self.prepare("test")
+
+    def before_predict(self) -> None:
+        self.prepare("predict")
+
+    def fit(self, **kwargs: Any) -> None:
+        self.execute("fit", **kwargs)
+
+    def validate(self, **kwargs: Any) -> None:
+        self.execute("validate", **kwargs)
+
+    def test(self, **kwargs: Any) -> None:
+        self.execute("test", **kwargs)
+
+    def predict(self, **kwargs: Any) -> None:
+        self.execute("predict", **kwargs)
+
+    def prepare(self, subcommand: str) -> None:
+        """Everything checked before a logger or an output creates anything; the checkpoint resolved."""
+        self._render_instead = False
         if subcommand == "fit" and self.config_init[subcommand].get("viewer"):  # a callback like the others
             from simplenerf.run.callbacks.viewer import TrainingViewer
 
@@ -212,17 +241,22 @@ class SimpleNeRFCLI(LightningCLI):
             lock_run_folder(Path(self.trainer.default_root_dir), command_line())
         self._held_logs.release()
         scene = data.scene if data is not None else None
-        if subcommand == "test" and scene is not None and not scene.split.test:
+        self._render_instead = subcommand == "test" and scene is not None and not scene.split.test
+
+    def execute(self, subcommand: str, **kwargs: Any) -> None:
+        """The trainer's `subcommand` with its arguments, its stops (a diverged loss, a signal) as one line each."""
+        folder = self.checkpoint_folder()
+        if self._render_instead:
             from simplenerf.viz.export import render_without_test_frames
 
             out = Path(self.trainer.default_root_dir) / "test"
-            written = render_without_test_frames(self.model, self.datamodule, config["ckpt_path"], out)
-            print(f"simplenerf: this split has no test frames (train frames {scene.split.train}), so there are no "
-                  f"metrics; wrote the train views' depth maps and point cloud and the spiral video: "
+            written = render_without_test_frames(self.model, self.datamodule, kwargs.get("ckpt_path"), out)
+            print(f"simplenerf: this split has no test frames (train frames {self.datamodule.scene.split.train}), so "
+                  f"there are no metrics; wrote the train views' depth maps and point cloud and the spiral video: "
                   f"{', '.join(map(str, written))}", flush=True)
             return
         try:
-            super()._run_subcommand(subcommand)
+            getattr(self.trainer, subcommand)(**kwargs)
         except TrainingDiverged as e:
             raise TrainingDiverged(f"{e}; {kept_checkpoints(folder)}") from None
         except (KeyboardInterrupt, SystemExit) as e:  # Lightning's SIGTERMException and its sys.exit(1) on Ctrl-C
@@ -281,68 +315,6 @@ def trainer_defaults() -> dict:
         "val_check_interval": 5000,
         "num_sanity_val_steps": 0,
     }
-
-
-# The arguments of a subcommand itself, not of the model, data or trainer: a fit saves them in <run>/config.yaml.
-SUBCOMMAND_KEYS = ("ckpt_path", "weights_only", "overwrite", "allow_changes", "viewer", "viewer_port")
-FIT_ONLY_KEYS = ("overwrite", "viewer", "viewer_port")
-
-
-def without_subcommand_keys(args: list[str], drop: tuple[str, ...]) -> list[str]:
-    """`args` with each `--config FILE` whose top level sets one of `drop` (a run's saved config.yaml) given as its
-    YAML without those keys, so that a fit's record works as the --config of test, validate or a tool; a file that
-    names a moved class path (`resume.MOVED_CLASS_PATHS`: a run trained before the move) is given with the current
-    one."""
-    out: list[str] = []
-    i = 0
-    while i < len(args):
-        if args[i] == "--config" and i + 1 < len(args):
-            out += ["--config", _config_without(args[i + 1], drop)]
-            i += 2
-            continue
-        if args[i].startswith("--config="):
-            out.append("--config=" + _config_without(args[i].split("=", 1)[1], drop))
-        else:
-            out.append(args[i])
-        i += 1
-    return out
-
-
-def check_config_files(args: list[str]) -> None:
-    """Each `--config FILE` given must be readable YAML: else one line naming the file, line and column (the
-    parser itself reads the text and would lose the file's name)."""
-    paths = [args[i + 1] for i, arg in enumerate(args[:-1]) if arg == "--config"]
-    paths += [arg.split("=", 1)[1] for arg in args if arg.startswith("--config=")]
-    for path in paths:
-        if not Path(path).is_file():
-            continue
-        try:
-            yaml.safe_load(Path(path).read_text())
-        except UnicodeDecodeError:
-            raise SimpleNeRFError(f"config file {path} is not text (UTF-8 YAML)") from None
-        except OSError as e:
-            raise SimpleNeRFError(f"cannot read config file {path}: {e.strerror or e}") from None
-        except yaml.YAMLError as e:
-            mark = getattr(e, "problem_mark", None)  # only yaml's MarkedYAMLError subclasses have these
-            where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else "somewhere"
-            what = " ".join(str(part) for part in (getattr(e, "context", None), getattr(e, "problem", None)) if part)
-            raise SimpleNeRFError(f"config file {path}: YAML syntax error at {where}: {what or e}") from None
-
-
-def _config_without(path: str, drop: tuple[str, ...]) -> str:
-    file = Path(path)
-    if not file.is_file():
-        return path  # a YAML string, or a missing file the parser reports
-    try:
-        config = yaml.safe_load(file.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError):
-        return path
-    if not isinstance(config, dict):
-        return path
-    upgraded = current_class_paths(config)
-    if upgraded == config and not any(key in config for key in drop):
-        return path
-    return yaml.safe_dump({k: v for k, v in upgraded.items() if k not in drop}, sort_keys=False)
 
 
 def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[LightningCLI] = SimpleNeRFCLI):

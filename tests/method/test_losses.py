@@ -1,4 +1,5 @@
-"""Simple-RF's mass-concentration loss: its bins, its value on hand-computed rays, and its place in the module."""
+"""Simple-RF's mass-concentration loss (its bins, its value on hand-computed rays, its place in the module) and
+Mip-NeRF 360's distortion loss."""
 
 import math
 
@@ -8,7 +9,7 @@ import torch
 from simplenerf.data.batches import RayBatch
 from simplenerf.geometry.rays import make_rays
 from simplenerf.method.augmentations import Augmentation
-from simplenerf.method.losses import bin_sizes, mass_concentration_loss
+from simplenerf.method.losses import bin_sizes, distortion_loss, mass_concentration_loss
 from simplenerf.method.module import SimpleNeRF
 from simplenerf.method.objective import Objective, RenderedRays, part_loss
 from simplenerf.method.reliability import PatchReprojectionMask
@@ -110,3 +111,47 @@ def test_the_objective_can_put_the_concentration_on_the_main_fine_render():
     assert "fine_concentration" not in part_loss(  # the paper's default: off, not computed
         SimpleNeRF(NeRF(small_grid(), small_grid(), num_coarse=10, num_fine=6)).terms,
         [RenderedRays("random", batch, renders, share=1.0)], regularize=False).values
+
+
+def test_distortion_is_small_for_a_surface_and_a_third_for_a_fog():
+    t = torch.linspace(0, 1, 65)[:-1].expand(3, 64).contiguous()  # intervals of 1/64
+    surface, fog, two = torch.zeros(64), torch.full((64,), 1 / 64), torch.zeros(64)
+    surface[10] = 1.0
+    two[10] = two[50] = 0.5
+    loss = [distortion_loss(w[None], t[:1]).item() for w in (surface, fog, two)]
+    assert loss[0] == pytest.approx(1 / 64 / 3, rel=1e-5)  # one interval: 1/3 w^2 d
+    assert loss[1] == pytest.approx(1 / 3, rel=1e-5)  # uniform over [0, 1): E|m_i - m_j| = 1/3 as d -> 0
+    # two halves 40 intervals apart: 2 * 0.25 * 40/64 between them + 1/3 * 2 * 0.25 / 64 within
+    assert loss[2] == pytest.approx(0.5 * 40 / 64 + 0.5 / 64 / 3, rel=1e-5)
+
+
+def test_distortion_matches_the_double_sum_on_uneven_samples():
+    torch.manual_seed(0)
+    t = torch.sort(torch.rand(4, 9), dim=-1).values
+    w = torch.rand(4, 9) / 9
+    d = torch.diff(t, dim=-1)
+    d = torch.cat([d, d[:, -1:]], dim=-1)
+    m = t + d / 2
+    brute = ((w[:, :, None] * w[:, None, :] * (m[:, :, None] - m[:, None, :]).abs()).sum((1, 2))
+             + (w**2 * d).sum(-1) / 3).mean()
+    torch.testing.assert_close(distortion_loss(w, t), brute)
+
+
+def test_the_objective_puts_the_distortion_on_both_main_renders():
+    torch.manual_seed(0)
+    nerf = NeRF(small_grid(), small_grid(), num_coarse=10, num_fine=6, density_noise_std=0.0)
+    model = SimpleNeRF(nerf, objective=Objective(distortion_weight=0.03))
+    assert model.terms["coarse_distortion"].weight == model.terms["fine_distortion"].weight == 0.03
+    for term in model.terms.values():
+        if term.name.startswith("tv_"):
+            term.weight = 0.0
+    batch = ray_batch()
+    renders = model.render(batch.rays, randomized=False)
+    part = part_loss(model.terms, [RenderedRays("random", batch, renders, share=1.0)], regularize=False)
+    assert set(part.values) == {"color", "coarse_distortion", "fine_distortion"}
+    main = renders.main
+    torch.testing.assert_close(part.values["fine_distortion"], distortion_loss(main.fine.weights, main.fine_samples.t))
+    torch.testing.assert_close(part.values["coarse_distortion"],
+                               distortion_loss(main.coarse.weights, main.coarse_samples.t))
+    torch.testing.assert_close(part.loss, part.values["color"] + 0.03 * (part.values["coarse_distortion"]
+                                                                         + part.values["fine_distortion"]))

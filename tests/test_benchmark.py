@@ -18,6 +18,7 @@ from benchmarks.speed import field_evaluations_per_ray, linear_macs, matmul_flop
 from benchmarks.summarize import side_by_side_table
 from simplenerf.commands.benchmark import main as benchmark_main
 from simplenerf.commands.benchmark import training_args
+from simplenerf.run import hardware
 from tests.run.test_cli import run_args
 
 
@@ -105,7 +106,8 @@ def _tiny(tmp_path) -> list[str]:
 
 def test_train_step_and_render_run_through_the_cli(tmp_path, capsys):
     record = benchmark_main(["--steps", "2", "--warmup", "1", "--label", "tiny", "--rays", "48", *_tiny(tmp_path)])
-    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    printed = capsys.readouterr()
+    line = json.loads(printed.out.strip().splitlines()[-1])
     assert line == json.loads(json.dumps(record))
     assert line["label"] == "tiny" and len(line["s_per_it_all"]) == 2 and len(line["warmup_s"]) == 1
     assert line["rays_random"] == 48  # --rays, after the config's overrides (64)
@@ -115,6 +117,11 @@ def test_train_step_and_render_run_through_the_cli(tmp_path, capsys):
     # no warm-up schedule: the masked depth losses are computed from the first step
     assert {"color", "sparse_depth", "points", "views", "cfc"} <= set(line["losses"])
     assert line["peak_rss_gib"] > 0 and line["peak_cuda_gib"] is None
+    cpu = hardware.cpu()  # the machine, named in the JSON and on stderr before the first step
+    assert (line["cpu"], line["cpu_capability"], line["torch_cpu_capability"]) == (cpu.model, cpu.capability,
+                                                                                   torch.backends.cpu.get_cpu_capability())
+    assert line["gpu"] == (torch.cuda.get_device_name() if torch.cuda.is_available() else None)
+    assert f"simplenerf: {cpu.line()}; precision 32-true\n" in printed.err
 
     record = render_main(["--frames", "1", "--rows", "5", *_tiny(tmp_path)])
     assert record["frame_shape"][0] == 5 and record["rays_per_frame"] == 5 * record["frame_shape"][1]

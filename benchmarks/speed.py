@@ -37,6 +37,7 @@ from torch import nn
 
 from simplenerf.data.scene import SceneDataModule
 from simplenerf.method.module import SimpleNeRF
+from simplenerf.run.hardware import announce
 
 GIB = 2**30
 
@@ -215,6 +216,7 @@ def time_training(
         raise ValueError(f"need steps >= 1 and warmup >= 0, got {steps}, {warmup}")
     timer = StepTimer()
     trainer = measuring_trainer(precision, accelerator, devices, max_steps=warmup + steps, callbacks=[timer])
+    announce(trainer.precision, trainer.strategy.root_device)  # the CPU; a warning when the precision is slow on it
     datamodule.setup("fit")
     model.set_train_views(datamodule.train_views)
     trainer.fit(model, datamodule)

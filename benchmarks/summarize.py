@@ -5,7 +5,9 @@ lines.
 
 Per variant (our runs carry it as `label`) and our precision: pooled s/it of the release (its discarded warm-up
 iterations and short sparse-depth batches left out, as ../shared/tools/official_timing/summarize.py) and of ours
-(timed iterations after warm-up), the ratio release / ours (above 1: ours is faster) and each side's peak RSS.
+(timed iterations after warm-up), the ratio release / ours (above 1: ours is faster) and each side's peak RSS. The
+table starts with the machine our records name (CPU model and capability, GPU): records of different machines are
+refused, so that no ratio mixes CPUs (the release's JSON does not name its machine: it ran in the same sitting).
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ def side_by_side_table(paths: Iterable[str | Path]) -> str:
     (release / ours: above 1 means ours is faster), the median CPU seconds (user + system) per iteration of each,
     which a shared machine disturbs less than wall time, and the peak RSS of each (range over runs)."""
     release, ours = _load_records(paths)
+    machine = machine_line(ours)
     release_by: dict[str, list[dict]] = {}
     for s in release:
         release_by.setdefault(s["variant"], []).append(s)
@@ -61,6 +64,8 @@ def side_by_side_table(paths: Iterable[str | Path]) -> str:
         ours_by.setdefault((r.get("label") or "?", r["precision"] + (" +tf32" if r.get("tf32") else "")), []).append(r)
     keys = sorted(set(ours_by) | {(v, "32-true") for v in release_by if not any(k[0] == v for k in ours_by)})
     lines = [
+        machine,
+        "",
         "| variant | rays/it | ours precision | release s/it median (min-max, n) | ours s/it median (min-max, n) "
         "| release / ours | CPU s/it release / ours | release peak RSS GiB | ours peak RSS GiB |",
         "|---|---|---|---|---|---|---|---|---|",
@@ -81,6 +86,19 @@ def side_by_side_table(paths: Iterable[str | Path]) -> str:
         lines.append(f"| {variant} | {rays} | {precision} | {_cell(rel_s)} | {_cell(own_s)} | {ratio} | {cpu} "
                      f"| {_range(rel_rss)} | {_range(own_rss)} |")
     return "\n".join(lines)
+
+
+def machine_line(records: list[dict]) -> str:
+    """`Machine: <CPU model> (<capability>)[, GPU <model>]` of our records (`simplenerf benchmark`'s JSON); one
+    machine only (records written before the JSON named the CPU: `unknown`)."""
+    machines = {(r.get("cpu") or "unknown CPU", r.get("cpu_capability") or "capability unknown", r.get("gpu"))
+                for r in records}
+    if len(machines) > 1:
+        names = "; ".join(sorted(f"{cpu} ({capability})" + (f", GPU {gpu}" if gpu else "")
+                                 for cpu, capability, gpu in machines))
+        raise ValueError(f"summarize: the records come from different machines ({names}): one sitting at a time")
+    cpu, capability, gpu = machines.pop() if machines else ("unknown CPU", "capability unknown", None)
+    return f"Machine: {cpu} ({capability})" + (f", GPU {gpu}" if gpu else "")
 
 
 def _range(values: list[float]) -> str:

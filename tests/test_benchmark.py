@@ -18,6 +18,7 @@ from benchmarks.speed import field_evaluations_per_ray, linear_macs, matmul_flop
 from benchmarks.summarize import side_by_side_table
 from simplenerf.commands.benchmark import main as benchmark_main
 from simplenerf.commands.benchmark import training_args
+from simplenerf.run import hardware
 from tests.run.test_cli import run_args
 
 
@@ -84,15 +85,23 @@ def test_side_by_side_table_pools_runs_and_leaves_out_short_batches(tmp_path):
                "records": records}
     (tmp_path / "release.json").write_text(json.dumps(release, indent=2))
     ours = [{"benchmark": "train_step", "label": "B", "precision": "32-true", "tf32": False, "rays_random": 256,
-             "rays_sparse": 256, "s_per_it_all": all_s, "cpu_s_all": all_s, "peak_rss_gib": rss}
+             "rays_sparse": 256, "s_per_it_all": all_s, "cpu_s_all": all_s, "peak_rss_gib": rss,
+             "cpu": "AMD EPYC 7B13", "cpu_capability": "AVX2", "gpu": None}
             for all_s, rss in (([2.0], 1.5), ([2.5], 1.7))]
     (tmp_path / "ours.json").write_text("\n".join(json.dumps(r) for r in ours) + "\n")
     table = side_by_side_table([tmp_path / "release.json", tmp_path / "ours.json"])
-    row = table.splitlines()[2]
+    assert table.splitlines()[:2] == ["Machine: AMD EPYC 7B13 (AVX2)", ""]
+    row = table.splitlines()[4]
     # release: iterations 2 and 3 (the first is discarded, the short batch left out) -> median 5.0; ours 2.25
     assert row.startswith("| B | 256+256 | 32-true | 5.00 (4.00-6.00, n=2) | 2.25 (2.00-2.50, n=2) | 2.22 |")
     assert "| 3.00 / 2.25 |" in row  # CPU seconds: release (2.0 + 0.5, 3.0 + 0.5), ours (2.0, 2.5)
     assert row.endswith("| 4.00 | 1.50-1.70 |")
+    # a record of another CPU in the same table: refused, no ratio mixes machines
+    other = {**ours[0], "cpu": "Intel(R) Xeon(R) Processor", "cpu_capability": "AVX-512"}
+    (tmp_path / "other.json").write_text(json.dumps(other) + "\n")
+    with pytest.raises(ValueError, match=r"different machines \(AMD EPYC 7B13 \(AVX2\); Intel\(R\) Xeon\(R\) "
+                                         r"Processor \(AVX-512\)\): one sitting at a time"):
+        side_by_side_table([tmp_path / "release.json", tmp_path / "ours.json", tmp_path / "other.json"])
 
 
 def _tiny(tmp_path) -> list[str]:
@@ -105,7 +114,8 @@ def _tiny(tmp_path) -> list[str]:
 
 def test_train_step_and_render_run_through_the_cli(tmp_path, capsys):
     record = benchmark_main(["--steps", "2", "--warmup", "1", "--label", "tiny", "--rays", "48", *_tiny(tmp_path)])
-    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    printed = capsys.readouterr()
+    line = json.loads(printed.out.strip().splitlines()[-1])
     assert line == json.loads(json.dumps(record))
     assert line["label"] == "tiny" and len(line["s_per_it_all"]) == 2 and len(line["warmup_s"]) == 1
     assert line["rays_random"] == 48  # --rays, after the config's overrides (64)
@@ -115,6 +125,11 @@ def test_train_step_and_render_run_through_the_cli(tmp_path, capsys):
     # no warm-up schedule: the masked depth losses are computed from the first step
     assert {"color", "sparse_depth", "points", "views", "cfc"} <= set(line["losses"])
     assert line["peak_rss_gib"] > 0 and line["peak_cuda_gib"] is None
+    cpu = hardware.cpu()  # the machine, named in the JSON and on stderr before the first step
+    assert (line["cpu"], line["cpu_capability"], line["torch_cpu_capability"]) == (cpu.model, cpu.capability,
+                                                                                   torch.backends.cpu.get_cpu_capability())
+    assert line["gpu"] == (torch.cuda.get_device_name() if torch.cuda.is_available() else None)
+    assert f"simplenerf: {cpu.line()}; precision 32-true\n" in printed.err
 
     record = render_main(["--frames", "1", "--rows", "5", *_tiny(tmp_path)])
     assert record["frame_shape"][0] == 5 and record["rays_per_frame"] == 5 * record["frame_shape"][1]

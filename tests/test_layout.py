@@ -31,7 +31,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
 )
 # The run package's own parts (`simplenerf.run.<part>`), lowest first, under the same rule.
 RUN_LAYERS: tuple[tuple[str, ...], ...] = (
-    ("signals", "memory", "loggers"),  # SIGINT/SIGTERM; the allocator; W&B
+    ("signals", "memory", "loggers", "hardware"),  # SIGINT/SIGTERM; the allocator; W&B; the CPU and precision
     ("console", "checks", "resume", "lock"),  # one-line errors (a stop by a signal); pre-flight; run records; the lock
     ("callbacks", "config_files"),  # every callback a run uses (RunRecord from resume); the config files given
     ("cli",),  # the LightningCLI

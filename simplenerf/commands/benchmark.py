@@ -6,7 +6,9 @@ warm-up iterations and prints ONE JSON line (benchmarks.speed), e.g.
 
 Everything after `--` goes to the CLI as overrides (`simplenerf fit` arguments). `--tf32` allows TF32 matrix products
 in fp32 (CUDA). The JSON holds s/it (median, min, max, all), rays/s, field evaluations/s, peak RSS and peak CUDA
-memory, CPU user/system time and page faults per iteration, and the losses computed. The config's warm-up schedule
+memory, CPU user/system time and page faults per iteration, the losses computed, and the machine (CPU model and
+capability: AVX2, AVX-512, AVX-512 BF16 or AMX; the GPU model). Before the first step it names the CPU and warns when
+the precision has no fast kernels on it (`simplenerf.run.hardware`). The config's warm-up schedule
 is not applied: every loss is computed at its configured weight (the cost of a step after the warm-up). Run
 `simplenerf sparse-depth` with the same arguments first, so that SfM is not in the measured process. One measurement
 per process: peak memory is per process. More measurements (rendering, a profile, the release side by side):
@@ -68,8 +70,10 @@ def build(args: argparse.Namespace, overrides: list[str]):
 
 
 def record_header(kind: str, args: argparse.Namespace, overrides: list[str]) -> dict:
-    """What every JSON line starts with: the measurement, its settings, the machine's threads, torch, the commit."""
+    """What every JSON line starts with: the measurement, its settings, the machine (CPU model and capability, the GPU
+    model where there is one: `simplenerf.run.hardware`), its threads, torch, the commit."""
     from simplenerf.evaluation.evaluator import git_commit
+    from simplenerf.run.hardware import machine_record
 
     return {
         "benchmark": kind,
@@ -78,6 +82,7 @@ def record_header(kind: str, args: argparse.Namespace, overrides: list[str]) -> 
         "overrides": overrides,
         "precision": args.precision,
         "tf32": args.tf32,
+        **machine_record(),
         "threads": torch.get_num_threads(),
         "torch": torch.__version__,
         "commit": git_commit(),

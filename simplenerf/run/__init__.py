@@ -5,5 +5,6 @@ run safe and visible while it trains.
 protocols, checkpoints, run folders)  `resume` (RunRecord: a resume continues the run)  `lock` (one writer per run
 folder)  `signals` (SIGINT/SIGTERM: stop at a step's end)  `console` (one-line errors, quiet libraries)  `loggers`
 (W&B, offline without credentials)  `memory` (SIMPLENERF_MALLOC)  `config_files` (the --config files given)
-`callbacks/` (every callback a run uses, by what it serves).
+`hardware` (the CPU's capability; a slow precision's warning)  `callbacks/` (every callback a run uses, by what it
+serves).
 """

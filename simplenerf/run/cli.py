@@ -33,7 +33,7 @@ from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopp
 from simplenerf.evaluation.evaluator import Evaluator
 from simplenerf.method.module import SimpleNeRF
 from simplenerf.metrics.lpips import LPIPSWeightsNotFound
-from simplenerf.run import signals
+from simplenerf.run import hardware, signals
 from simplenerf.run.callbacks import (
     Checkpointing,
     LearningRates,
@@ -240,6 +240,7 @@ class SimpleNeRFCLI(LightningCLI):
         if rank_zero_only.rank == 0:  # one writer per run folder (under DDP, rank 0 for all)
             lock_run_folder(Path(self.trainer.default_root_dir), command_line())
         self._held_logs.release()
+        hardware.announce(self.trainer.precision, self.trainer.strategy.root_device)  # once: rank 0 prints it
         scene = data.scene if data is not None else None
         self._render_instead = subcommand == "test" and scene is not None and not scene.split.test
 

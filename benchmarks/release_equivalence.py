@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import json
 import sys
 import time
 from pathlib import Path
@@ -194,6 +195,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trajectory-rays", type=int, default=16)
     ap.add_argument("--skip-data", action="store_true", help="only the training-step checks")
     ap.add_argument("--out", type=Path, default=None, help="also write the table here (markdown)")
+    ap.add_argument("--json", type=Path, default=None, help="also write one JSON line here: device, rows, failed "
+                    "rows, seconds (benchmarks/gpu.sh collects it)")
     args = ap.parse_args(argv)
     try:
         args.device = check_device(args.device)
@@ -247,6 +250,15 @@ def main(argv: list[str] | None = None) -> int:
         print(NOTES)
     if args.out:
         args.out.write_text(table + "\n")
+    if args.json:
+        record = {"check": "release_equivalence", "device": str(args.device), "device_name": device_name(args.device),
+                  "dtype": args.dtype, "views": args.views, "rays": args.rays,
+                  "trajectory_steps": args.trajectory_steps, "data_rows": not args.skip_data,
+                  "rows": len(report.rows), "passed_rows": sum(r.passed for r in report.rows),
+                  "failed": [f"{r.group}: {r.quantity}" for r in report.rows if not r.passed],
+                  "seconds": round(time.perf_counter() - started, 1), "torch": torch.__version__,
+                  "release_src": str(args.release_src), "scene": str(args.scene_dir)}
+        args.json.write_text(json.dumps(record) + "\n")
     return 0 if report.passed else 1
 
 

@@ -274,7 +274,7 @@ def near_empty_bins(group: str, theirs: dict, mine: dict, rtol: float, atol: flo
     dt = diff.amax(dim=1)
     flagged = torch.nonzero((diff > atol + rtol * theirs["fine t"].abs()).any(dim=1)).flatten()
     explained, notes = [], []
-    for ray in flagged.tolist():
+    for ray in flagged.cpu().tolist():
         cdfs = []
         for side in (theirs, mine):
             w = side["main coarse weights"][ray, 1:-1].double() + 1e-5

@@ -12,12 +12,21 @@ export SIMPLENERF_SHARED ?= $(SHARED)
 
 .PHONY: setup demo test
 
+# VENV_FLAGS=--system-site-packages: the venv sees PYTHON's packages, so a CUDA torch installed there is kept.
+VENV_FLAGS ?=
+# The tested torch; tools/install_torch.sh keeps an installed torch that satisfies pyproject.toml.
+TORCH_PIN ?= 2.13.0
+
 $(VENV)/.installed: pyproject.toml
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	test -x $(PY) || $(PYTHON) -m venv $(VENV_FLAGS) $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	# torch first and pinned: the CPU wheel; an unpinned resolve would pull CUDA packages. OpenCV pinned too: it draws
-	# the demo scene's pictures, and its anti-aliased drawing changes between versions (so would the demo's scores).
-	$(PY) -m pip install -q torch==2.13.0 opencv-contrib-python-headless==5.1.0.95
+	# torch first (README "Install"): kept if the venv already has one that satisfies pyproject.toml; else the
+	# pinned CUDA build where nvidia-smi lists a GPU, the CPU build (PyTorch's CPU index) where not. An unpinned
+	# resolve would pull the CUDA build everywhere.
+	TORCH_PIN=$(TORCH_PIN) bash tools/install_torch.sh $(PY)
+	# OpenCV pinned: it draws the demo scene's pictures, and its anti-aliased drawing changes between versions (so
+	# would the demo's scores).
+	$(PY) -m pip install -q opencv-contrib-python-headless==5.1.0.95
 	$(PY) -m pip install -q -e '.[dev]'
 	# lpips only for its v0.1 linear heads; --no-deps because it requires torchvision.
 	$(PY) -m pip install -q --no-deps lpips==0.1.4

@@ -11,7 +11,9 @@ the scene itself (`benchmarks/equivalence/layouts.py`) under `--work-dir`. docs/
         --realestate ../shared/data/realestate10k/000c3ab189999a83
 
 checks the data of fern with 2, 3 and 4 views (and the RealEstate-10K clip), one training step per view count and a
-200-step trajectory with 2 views.
+200-step trajectory with 2 views. `--device cuda` (or `cuda:N`) runs both sides' training steps and trajectory on that
+GPU (the release's model and batches, our module, the captured outputs); the data rows stay on the CPU (they compare
+the data pipelines, which run before anything is moved to a GPU in training).
 
 Settings of ours switched to the release's behaviour for the check (each listed in the table's notes):
 `PatchReprojectionMask.require_in_front` false (the release has no z > 0 check), `rays_per_backward` 2048 (the
@@ -23,7 +25,7 @@ from __future__ import annotations
 
 import argparse
 import copy
-import os
+import json
 import sys
 import time
 from pathlib import Path
@@ -38,8 +40,32 @@ from benchmarks.equivalence.weights import copy_release_weights
 REPO = Path(__file__).resolve().parents[1]
 
 
-def our_module(config: Path, scene_dir: Path, views: int, factor: int):
-    """Our SimpleNeRF from the paper config, with the release-faithful switches (module docstring)."""
+class DeviceError(ValueError):
+    """A `--device` that this machine cannot give (usage error, exit status 2)."""
+
+
+def check_device(spec: str) -> torch.device:
+    """`--device`: "cpu", "cuda" or "cuda:N", checked against this machine (one line on error)."""
+    try:
+        device = torch.device(spec)
+    except RuntimeError:
+        raise DeviceError(f"--device {spec!r}: not a device name; expected cpu, cuda or cuda:N") from None
+    if device.type == "cpu":
+        return torch.device("cpu")
+    if device.type != "cuda":
+        raise DeviceError(f"--device {spec!r}: the check runs on cpu or cuda[:N], not {device.type}")
+    if not torch.cuda.is_available():
+        raise DeviceError(f"--device {spec!r}: no CUDA device (torch.cuda.is_available() is False for torch "
+                          f"{torch.__version__}); use --device cpu")
+    index = 0 if device.index is None else device.index
+    if index >= torch.cuda.device_count():
+        raise DeviceError(f"--device {spec!r}: this machine has {torch.cuda.device_count()} CUDA device(s), "
+                          f"numbered from 0")
+    return torch.device("cuda", index)
+
+
+def our_module(config: Path, scene_dir: Path, views: int, factor: int, device: torch.device = torch.device("cpu")):
+    """Our SimpleNeRF from the paper config, with the release-faithful switches (module docstring), on `device`."""
     from simplenerf.method.reliability import PatchReprojectionMask
     from simplenerf.run.cli import make_cli
 
@@ -50,7 +76,7 @@ def our_module(config: Path, scene_dir: Path, views: int, factor: int):
     for mask in [aug.mask for aug in module.augmentations] + [module.coarse_fine_mask]:
         if isinstance(mask, PatchReprojectionMask):
             mask.require_in_front = False
-    return module
+    return module.to(device)
 
 
 def llff_step_layout(repo, work_dir: Path, scene_dir: Path, factor: int, config: dict, seed: int) -> Path:
@@ -97,11 +123,11 @@ def step_check(args, repo, report: Report, views: int, trajectory: bool) -> None
     config["sub_batch_size"] = args.rays  # the published split: one sub-batch of random rays, one of sparse rays
     config["seed"] = args.seed
     run_root = llff_step_layout(repo, args.work_dir, args.scene_dir, args.factor, config, args.seed)
-    run = rel.build_trainer(config, run_root)
-    module = our_module(args.config, args.scene_dir, views, args.factor)
+    run = rel.build_trainer(config, run_root, device=args.device)
+    module = our_module(args.config, args.scene_dir, views, args.factor, args.device)
     module.train()
     mapping = copy_release_weights(run.model, module)
-    group = f"step {scene} {views}v {args.dtype}"
+    group = f"step {scene} {views}v {args.dtype}" + ("" if args.device.type == "cpu" else f" {args.device}")
 
     if dtype != torch.float32:  # both models and the batch in float64 (the release's loss sums stay float32)
         torch.set_default_dtype(dtype)
@@ -138,7 +164,11 @@ def step_check(args, repo, report: Report, views: int, trajectory: bool) -> None
     torch.set_default_dtype(torch.float32)
 
 
-def main() -> int:
+def device_name(device: torch.device) -> str:
+    return "the CPU" if device.type == "cpu" else f"{device} ({torch.cuda.get_device_name(device)})"
+
+
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--release-src", type=Path, required=True, help="the release's src/ folder (a copy at c429746)")
     ap.add_argument("--release-git", type=Path, default=None,
@@ -158,15 +188,23 @@ def main() -> int:
                     "(>= 10000: after the warm-up, every masked loss at weight 0.1)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--dtype", choices=["float32", "float64"], default="float32")
+    ap.add_argument("--device", default="cpu", help="where both sides' training steps run: cpu (default), cuda or "
+                    "cuda:N (the data rows stay on the CPU)")
     ap.add_argument("--trajectory-steps", type=int, default=200, help="steps of the trajectory (0: none), run "
                     "for the first view count")
     ap.add_argument("--trajectory-rays", type=int, default=16)
     ap.add_argument("--skip-data", action="store_true", help="only the training-step checks")
     ap.add_argument("--out", type=Path, default=None, help="also write the table here (markdown)")
-    args = ap.parse_args()
+    ap.add_argument("--json", type=Path, default=None, help="also write one JSON line here: device, rows, failed "
+                    "rows, seconds (benchmarks/gpu.sh collects it)")
+    args = ap.parse_args(argv)
+    try:
+        args.device = check_device(args.device)
+    except DeviceError as e:
+        print(f"release_equivalence: {e}", file=sys.stderr)
+        return 2
     args.work_dir = args.work_dir.resolve()
     args.scene_dir = args.scene_dir.resolve()
-    os.environ.setdefault("CUDA_VISIBLE_DEVICES", "")
 
     from benchmarks.equivalence.data import NOTES, data_rows
     from benchmarks.equivalence.layouts import ReleaseRepo
@@ -206,11 +244,21 @@ def main() -> int:
 
     table = report.markdown()
     print(table)
-    print(f"\n{time.perf_counter() - started:.0f} s; release {args.release_src}; scene {args.scene_dir}\n")
+    print(f"\n{time.perf_counter() - started:.0f} s on {device_name(args.device)}; release {args.release_src}; "
+          f"scene {args.scene_dir}\n")
     if not args.skip_data:
         print(NOTES)
     if args.out:
         args.out.write_text(table + "\n")
+    if args.json:
+        record = {"check": "release_equivalence", "device": str(args.device), "device_name": device_name(args.device),
+                  "dtype": args.dtype, "views": args.views, "rays": args.rays,
+                  "trajectory_steps": args.trajectory_steps, "data_rows": not args.skip_data,
+                  "rows": len(report.rows), "passed_rows": sum(r.passed for r in report.rows),
+                  "failed": [f"{r.group}: {r.quantity}" for r in report.rows if not r.passed],
+                  "seconds": round(time.perf_counter() - started, 1), "torch": torch.__version__,
+                  "release_src": str(args.release_src), "scene": str(args.scene_dir)}
+        args.json.write_text(json.dumps(record) + "\n")
     return 0 if report.passed else 1
 
 

@@ -10,6 +10,7 @@ import pytest
 import torch
 from torch import nn
 
+from benchmarks import gpu_report
 from benchmarks.profile_step import main as profile_main
 from benchmarks.profile_step import matmul_time
 from benchmarks.render import crop_rows
@@ -130,6 +131,15 @@ def test_train_step_and_render_run_through_the_cli(tmp_path, capsys):
                                                                                    torch.backends.cpu.get_cpu_capability())
     assert line["gpu"] == (torch.cuda.get_device_name() if torch.cuda.is_available() else None)
     assert f"simplenerf: {cpu.line()}; precision 32-true\n" in printed.err
+
+    # benchmarks/gpu.sh's figures: the measurement's JSON line, found in a step's log and summarised
+    log = tmp_path / "benchmark_fp32.log"
+    log.write_text(f"progress on stderr\n{json.dumps(record)}\nmore stderr\n")
+    recorded = gpu_report.record(tmp_path / "gpu", "benchmark_fp32", "0", 12.34, from_json=log)
+    assert recorded == {"step": "benchmark_fp32", "status": 0, "wall_s": 12.3, "measured": line}
+    row = gpu_report.summary(tmp_path / "gpu").splitlines()[-1]
+    assert row == (f"| benchmark_fp32 | done | 12 | {line['s_per_it']:.3f} ({line['s_per_it_min']:.3f}-"
+                   f"{line['s_per_it_max']:.3f}) |  | {line['rays_per_s']:.0f} rays/s |")  # no CUDA: no GPU peak
 
     record = render_main(["--frames", "1", "--rows", "5", *_tiny(tmp_path)])
     assert record["frame_shape"][0] == 5 and record["rays_per_frame"] == 5 * record["frame_shape"][1]

@@ -16,7 +16,7 @@ from simplenerf.run.cli import make_cli
 from simplenerf.synthetic.generate import make_synthetic_scene
 from tests.conftest import REPO
 from tests.device_check import DEVICE, CpuTensorOnDevice, OnDevice, on_device
-from tests.test_cli import shrink
+from tests.run.test_cli import shrink
 
 
 @pytest.fixture(scope="module")

@@ -4,6 +4,8 @@ random draws into our sampling code, and the skip layer's column permutation."""
 from __future__ import annotations
 
 import math
+import re
+import sys
 
 import pytest
 import torch
@@ -66,3 +68,62 @@ def test_skip_layer_columns_move_from_input_first_to_input_last():
     ours = release_to_ours("coarse_model.pts_linears.5.weight", release)
     assert torch.equal(ours[:, :width], release[:, encoded:]) and torch.equal(ours[:, width:], release[:, :encoded])
     assert release_to_ours("coarse_model.pts_linears.4.weight", release) is release
+
+
+def test_device_option_names_what_this_machine_cannot_give(monkeypatch, capsys):
+    from benchmarks import release_equivalence as check
+
+    assert check.check_device("cpu") == torch.device("cpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    for spec, message in [("cuda", "no CUDA device (torch.cuda.is_available() is False"),
+                          ("meta", "runs on cpu or cuda[:N], not meta"), ("gpu0", "not a device name")]:
+        with pytest.raises(check.DeviceError, match=re.escape(message)):
+            check.check_device(spec)
+    # through the command: one line, exit status 2, before the release is looked for
+    assert check.main(["--release-src", "/nonexistent/src", "--device", "cuda"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("release_equivalence: --device 'cuda': no CUDA device") and err.count("\n") == 1
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
+    assert check.check_device("cuda") == torch.device("cuda", 0)
+    assert check.check_device("cuda:1") == torch.device("cuda", 1)
+    with pytest.raises(check.DeviceError, match=re.escape("has 2 CUDA device(s)")):
+        check.check_device("cuda:2")
+
+
+def test_release_device_replaces_the_releases_device_choice_while_it_builds(monkeypatch):
+    """The release's classes ask `utils.CommonUtils01.get_device(config["device"])` in their constructors (cuda:0
+    whenever CUDA is available); within `release_device` they get the check's device, after it their own rule."""
+    import types
+
+    from benchmarks.equivalence.release import release_device
+
+    def get_device(configured):
+        return torch.device(f"cuda:{configured[0]}")
+
+    common = types.ModuleType("utils.CommonUtils01")
+    common.get_device = get_device
+    utils = types.ModuleType("utils")
+    utils.CommonUtils01 = common
+    monkeypatch.setitem(sys.modules, "utils", utils)
+    monkeypatch.setitem(sys.modules, "utils.CommonUtils01", common)
+    with release_device(torch.device("cpu")):
+        assert common.get_device([0]) == torch.device("cpu")
+    assert common.get_device is get_device
+    with pytest.raises(KeyError), release_device(torch.device("cpu")):
+        raise KeyError("restored on an error too")
+    assert common.get_device([1]) == torch.device("cuda:1")
+
+
+def test_trajectory_floor_perturbation_moves_each_weight_by_one_ulp():
+    """The ulp-perturbed twin (drawing its signs on the CPU and moving them to each weight's device, so that a module
+    on a GPU works too) moves every weight of 1.0 to 1 +- 2^-23, both signs drawn, and leaves the module alone."""
+    from benchmarks.equivalence.trajectory import FLOAT32_ULP, ulp_perturbed
+
+    module = torch.nn.Linear(8, 8)
+    torch.nn.init.ones_(module.weight), torch.nn.init.ones_(module.bias)
+    twin = ulp_perturbed(module)
+    moved = torch.cat([(q - 1).flatten() for q in twin.parameters()])
+    assert torch.equal(moved.abs(), torch.full_like(moved, FLOAT32_ULP))
+    assert (moved > 0).any() and (moved < 0).any()
+    assert torch.equal(module.weight, torch.ones(8, 8))

@@ -52,6 +52,7 @@ from benchmarks.equivalence.layouts import (
     build_realestate_layout,
     write_sparse_depth_csvs,
 )
+from benchmarks.equivalence.release import release_device
 from benchmarks.equivalence.report import Report, Row, compare, exact, flag
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -109,6 +110,11 @@ def run_release(repo: ReleaseRepo, configs: dict, data_dir: Path, scene_id: str,
     loader_factory = repo.import_module("data_loaders.DataLoaderFactory")
     preprocessor_factory = repo.import_module("data_preprocessors.DataPreprocessorFactory")
     configs["data_loader"]["scene_id"] = scene_id  # as Trainer01.start_training sets it per scene
+    with release_device(torch.device("cpu")):  # the data rows compare on the CPU, also on a CUDA machine
+        return _run_release(loader_factory, preprocessor_factory, configs, data_dir, make_csvs)
+
+
+def _run_release(loader_factory, preprocessor_factory, configs: dict, data_dir: Path, make_csvs) -> dict:
     train_loader = loader_factory.get_data_loader(configs, data_dir, mode="train")
     make_csvs(train_loader.get_frame_nums())
     train = preprocessor_factory.get_data_preprocessor(configs, "train", raw_data_dict=train_loader.load_data())

@@ -47,6 +47,23 @@ def working_dir(path: Path):
         os.chdir(previous)
 
 
+@contextmanager
+def release_device(device: torch.device):
+    """Within: the release puts its model and data on `device`. Its classes take their device in `__init__` from
+    `utils.CommonUtils01.get_device(config["device"])` (cuda:<first of the list> when CUDA is available, else the
+    CPU; `Trainer01.Trainer`, `DataPreprocessor01`, `Tester01`), and the preprocessor repeats its common data
+    `len(config["device"])` times, so the config keeps `device: [0]` (one copy) and `get_device` is replaced for the
+    construction: the release on the CPU on a CUDA machine too, or on the GPU that ours uses."""
+    import utils.CommonUtils01 as common
+
+    original = common.get_device
+    common.get_device = lambda _configured: device
+    try:
+        yield
+    finally:
+        common.get_device = original
+
+
 @dataclass
 class ReleaseRun:
     """What the release's `Trainer01.start_training` builds for one scene."""
@@ -60,15 +77,16 @@ class ReleaseRun:
     lr_decayer: object
 
 
-def build_trainer(config: dict, run_root: Path, train_num: int = 9100) -> ReleaseRun:
+def build_trainer(config: dict, run_root: Path, train_num: int = 9100,
+                  device: torch.device = torch.device("cpu")) -> ReleaseRun:
     """The release's trainer for `config` (its `data_loader.scene_names[0]`), as `Trainer01.start_training` builds it
-    (seeded with `config["seed"]` by its `init_seeds`); the model is not wrapped in `DataParallel`, which on a CPU
-    calls the module directly anyway."""
+    (seeded with `config["seed"]` by its `init_seeds`), with its model and batches on `device` (`release_device`);
+    the model is not wrapped in `DataParallel`, which with one device calls the module directly anyway."""
     import Trainer01
 
     config = dict(config, train_num=train_num, device=[0], resume_training=True)
     scene = config["data_loader"]["scene_names"][0]
-    with working_dir(Path(run_root) / "src"):
+    with working_dir(Path(run_root) / "src"), release_device(device):
         root = Path("../")
         database = root / "data" / config["database_dirpath"]
         output = root / f"runs/training/train{train_num:04}" / scene

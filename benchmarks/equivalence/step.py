@@ -81,15 +81,17 @@ def to_training_batch(batch: dict):
 
 
 def train_views(batch: dict):
-    """The train views the release's masks look at (`common_data`: poses, images, intrinsics) as our `Views`."""
+    """The train views the release's masks look at (`common_data`: poses, images, intrinsics) as our `Views`, on the
+    device of the batch's rays."""
     from simplenerf.geometry.views import Views
 
     common = batch["common_data"]
     poses, images, intrinsics = (torch.as_tensor(common[k]) for k in ("poses", "images", "intrinsics"))
     if images.ndim == 5:  # repeated per GPU by `load_cached_next_batch`
         poses, images, intrinsics = poses[0], images[0], intrinsics[0]
-    return Views(images=images.to(torch.get_default_dtype()), intrinsics=intrinsics.to(torch.get_default_dtype()),
-                 c2w=poses[:, :3, :4].to(torch.get_default_dtype()), names=[str(i) for i in range(len(poses))])
+    like = dict(device=batch["rays_o"].device, dtype=torch.get_default_dtype())
+    return Views(images=images.to(**like), intrinsics=intrinsics.to(**like), c2w=poses[:, :3, :4].to(**like),
+                 names=[str(i) for i in range(len(poses))])
 
 
 @dataclass
@@ -272,7 +274,7 @@ def near_empty_bins(group: str, theirs: dict, mine: dict, rtol: float, atol: flo
     dt = diff.amax(dim=1)
     flagged = torch.nonzero((diff > atol + rtol * theirs["fine t"].abs()).any(dim=1)).flatten()
     explained, notes = [], []
-    for ray in flagged.tolist():
+    for ray in flagged.cpu().tolist():
         cdfs = []
         for side in (theirs, mine):
             w = side["main coarse weights"][ray, 1:-1].double() + 1e-5
@@ -286,7 +288,7 @@ def near_empty_bins(group: str, theirs: dict, mine: dict, rtol: float, atol: flo
         cdf_gap = float((cdfs[0] - cdfs[1]).abs().max())
         explained.append(cdf_gap <= 2.4e-7 and pdf < 1e-3)
         notes.append(f"ray {ray}: dt {float(dt[ray]):.1e}, bin pdf {pdf:.1e}, cdf gap {cdf_gap:.1e}")
-    keep = torch.ones(len(dt), dtype=torch.bool)
+    keep = torch.ones(len(dt), dtype=torch.bool, device=dt.device)
     keep[flagged] = False
     row = Row(group, "fine samples moved by inverse-CDF conditioning (near-empty bins)", float(len(flagged)), 0.0,
               all(explained), "explained", "; ".join(notes) or "none", len(dt))

@@ -27,7 +27,8 @@ def ulp_perturbed(module):
     g = torch.Generator().manual_seed(1)
     with torch.no_grad():
         for p in twin.parameters():
-            sign = torch.randint(0, 2, p.shape, generator=g).to(p.dtype) * 2 - 1
+            # drawn on the CPU: the same signs on any device
+            sign = torch.randint(0, 2, p.shape, generator=g).to(device=p.device, dtype=p.dtype) * 2 - 1
             p.mul_(1 + sign * FLOAT32_ULP)
     return twin
 

@@ -59,3 +59,39 @@ def test_streak_index_divides_by_the_photos_ratio(tmp_path):
     cv2.imwrite(str(run / "test" / "rgb" / "DJI_1.png"), photo)
     assert streak_index(run, [*photos, named]) == pytest.approx({"depth": (6.0 + 1.5) / 2, "render": 0.625,
                                                                  "frames": 2})
+
+
+def test_blur_calibration_degrades_as_named():
+    from benchmarks.blur_calibration import degraded
+
+    photo = np.zeros((16, 24, 3), np.uint8)
+    photo[:, 10] = 200  # one bright column
+    copies = degraded(photo)
+    assert (copies["shift2"][:, 12] == 200).all() and (copies["shift2"][:, 10] == 0).all()  # moved 2 px right
+    assert (copies["rowblur9"][:, 6:15] > 0).all() and (copies["rowblur9"][:, :6] == 0).all()  # smeared along rows
+    assert (copies["gauss1"][0] == copies["gauss1"][-1]).all()  # a column stays a column
+    flat = np.full((16, 24, 3), 77, np.uint8)
+    assert all((c == 77).all() for c in degraded(flat).values())  # nothing to lose in a flat picture
+
+
+def test_ray_spread_is_zero_for_a_surface_and_about_a_uniform_fogs_std():
+    from types import SimpleNamespace
+
+    import torch
+
+    from benchmarks.view_scores import ray_spread
+
+    t = torch.linspace(0, 1, 101)[:-1].expand(4, 100)
+    surface = torch.zeros(4, 100)
+    surface[:, 30] = 0.9  # accumulation 0.9: normalised away
+    fog = torch.full((4, 100), 0.01)
+
+    def model_with(weights):
+        outputs = SimpleNamespace(fine_samples=SimpleNamespace(t=t), fine=SimpleNamespace(weights=weights))
+        return SimpleNamespace(nerf=lambda rays, randomized: outputs)
+
+    frame = SimpleNamespace(rays=torch.arange(4))
+    assert ray_spread(model_with(surface), frame, every=1) == {"spread_t": 0.0, "off_surface": 0.0}
+    spread = ray_spread(model_with(fog), frame, every=1)
+    assert spread["spread_t"] == pytest.approx((1 / 12 - 1 / 12 / 100**2) ** 0.5, rel=1e-4)  # discrete uniform
+    assert spread["off_surface"] == pytest.approx(0.89, abs=0.011)  # all but the 10 or 11 samples within 0.05

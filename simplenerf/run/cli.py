@@ -57,7 +57,7 @@ from simplenerf.run.checks import (
     resolve_checkpoint,
 )
 from simplenerf.run.console import PROG, HeldLogs, parser_error_line
-from simplenerf.run.lock import command_line, lock_run_folder
+from simplenerf.run.lock import command_line, lock_run_folder, release_run_folder
 from simplenerf.run.loggers import WandbLogger
 from simplenerf.run.memory import reuse_freed_memory
 from simplenerf.run.resume import (
@@ -201,15 +201,22 @@ class SimpleNeRFCLI(LightningCLI):
             self.model.set_train_views(data.train_views)  # what the reliability masks reproject into
         config = self.config_init[subcommand]
         folder = self.checkpoint_folder()
-        given = config.get("ckpt_path")
-        config["ckpt_path"] = resolve_checkpoint(subcommand, given, folder, self.model)
-        self.check_settings(subcommand, config)
-        if subcommand == "fit" and given is None:
-            prepare_fresh_fit(folder, bool(config.get("overwrite", False)))
-        check_writable(self.output_folders(subcommand))
-        preflight_outputs(self.trainer.callbacks, self.trainer, subcommand)  # e.g. an earlier test/ kept in the way
-        if rank_zero_only.rank == 0:  # one writer per run folder (under DDP, rank 0 for all)
-            lock_run_folder(Path(self.trainer.default_root_dir), command_line())
+        # One writer per run folder (under DDP, rank 0 for all), locked before anything in it is read, moved or
+        # deleted: a second command into a busy folder stops here and changes nothing (docs/running.md).
+        run_folder = Path(self.trainer.default_root_dir)
+        if rank_zero_only.rank == 0:
+            lock_run_folder(run_folder, command_line())
+        try:
+            given = config.get("ckpt_path")
+            config["ckpt_path"] = resolve_checkpoint(subcommand, given, folder, self.model)
+            self.check_settings(subcommand, config)
+            if subcommand == "fit" and given is None:
+                prepare_fresh_fit(folder, bool(config.get("overwrite", False)))
+            check_writable(self.output_folders(subcommand))
+            preflight_outputs(self.trainer.callbacks, self.trainer, subcommand)  # e.g. an earlier test/ in the way
+        except BaseException:
+            release_run_folder(run_folder)  # a folder this command created is removed again
+            raise
         self._held_logs.release()
         scene = data.scene if data is not None else None
         if subcommand == "test" and scene is not None and not scene.split.test:

@@ -106,6 +106,14 @@ def test_sigterm_and_sigint_stop_fit_with_a_checkpoint_and_a_busy_folder_is_refu
     # | Ctrl-C during a resumed fit | the same, exit status 130; the lock of the killed process is no obstacle |
     fit = start(tmp_path, "fit", *args, "--ckpt_path", "last")
     wait_for(fit, f"step {step + 2}/")
+    # | `fit --overwrite true` and `test` into the running fit's folder | refused before anything there is touched |
+    saved = {p.name: p.read_bytes() for p in last.parent.iterdir()}
+    for verb, extra in (("fit", ["--overwrite", "true"]), ("test", ["--ckpt_path", "last"])):
+        busy = run(verb, *args, *extra, check=False)
+        assert busy.returncode == 2
+        [line] = busy.stderr.strip().splitlines()
+        assert line.startswith(f"{ERROR}the run folder {tmp_path / 'run'} is in use by pid {fit.pid} on ")
+    assert {p.name: p.read_bytes() for p in last.parent.iterdir()} == saved
     fit.send_signal(signal.SIGINT)
     status, stderr = finish(fit)
     assert status == 130 and last_step(last) >= step + 2

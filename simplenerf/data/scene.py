@@ -133,6 +133,16 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
     def check_inputs(self, stage: str) -> None:
         """Loads everything `stage` needs; the CLI calls this before loggers or outputs start, so bad input (a missing
         or unreadable file, an impossible split, a scene without SfM points) stops the run with nothing written."""
+        if self.scene is None:
+            self.scene = self.load_scene()
+        if stage == "fit":  # checked here (before SfM), not when the first batch is drawn inside Lightning
+            train = self.train_views
+            pixels = len(train) * train.height * train.width
+            if self.rays_per_batch > pixels:
+                raise DataError(
+                    f"--data.init_args.rays_per_batch: {self.rays_per_batch} is more than the {pixels} training pixels "
+                    f"({len(train)} train views of {train.width}x{train.height}); use at most {pixels}"
+                )
         self.setup(stage)
 
     def setup(self, stage: str) -> None:

@@ -25,6 +25,7 @@ from typing import Any, NoReturn
 
 import yaml
 from jsonargparse import lazy_instance
+from jsonargparse.typing import restricted_number_type
 from lightning.pytorch import LightningDataModule, Trainer
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
 from lightning.pytorch.utilities import rank_zero_only
@@ -48,6 +49,7 @@ from simplenerf.run.callbacks import (
 from simplenerf.run.checks import (
     check_checkpoint_fits,
     check_model_meets_data,
+    check_optimisation,
     check_writable,
     kept_checkpoints,
     preflight_inputs,
@@ -76,6 +78,9 @@ DESCRIPTION = (
     "scores every test frame into <run>/test, predict renders the test frames. Start from a config in configs/, "
     "e.g. `simplenerf fit --config configs/demo.yaml`; `simplenerf fit --help` lists every option."
 )
+
+
+Port = restricted_number_type("Port", int, [(">=", 0), ("<=", 65535)])  # a TCP port (0: any free one)
 
 
 class OneLineErrorParser(LightningArgumentParser):
@@ -145,7 +150,8 @@ class SimpleNeRFCLI(LightningCLI):
             )
             parser.add_argument("--viewer", type=bool, default=False,
                                 help="Open the web viewer of the run while it trains (docs/viewer.md).")
-            parser.add_argument("--viewer_port", type=int, default=8080, help="The viewer's port (0: any free one).")
+            parser.add_argument("--viewer_port", type=Port, default=8080,
+                                help="The viewer's port, 0-65535 (0: any free one).")
         if subcommand in ("fit", "test"):
             parser.add_argument(
                 "--allow_changes", type=list[str], default=[],
@@ -196,6 +202,9 @@ class SimpleNeRFCLI(LightningCLI):
             # The advice must be one that works: lpips_weights takes a path, lpips turns the metric off.
             raise SimpleNeRFError(re.sub(r"\(e\.g\. `--evaluation\.lpips_weights none`\)",
                                          "with `--evaluation.lpips false`", str(e))) from None
+        if subcommand == "fit":  # a value torch refuses (a negative lr) stops here, not inside Lightning
+            model_config = self.config[subcommand].get("model")
+            check_optimisation(self.model, model_config.as_dict() if hasattr(model_config, "as_dict") else None)
         if data is not None and subcommand == "fit":
             check_model_meets_data(self.model, len(data.train_views), subcommand)
             self.model.set_train_views(data.train_views)  # what the reliability masks reproject into

@@ -23,7 +23,7 @@ PROG = "simplenerf"
 TYPE_WORDS = {
     "PositiveInt": "a positive integer", "NonNegativeInt": "an integer >= 0", "PositiveFloat": "a positive number",
     "NonNegativeFloat": "a number >= 0", "int": "an integer", "float": "a number", "bool": "true or false",
-    "str": "a string",
+    "str": "a string", "Port": "a port number 0-65535",
 }
 
 
@@ -40,6 +40,24 @@ def _cause(detail: str, given: str | None) -> str:
     if match := re.match(r"Expected a <class '(\w+)'>\.? Got value: (.*)$", detail):
         return f"expected {TYPE_WORDS.get(match.group(1), match.group(1))}, got {match.group(2)}"
     return detail
+
+
+def _union_cause(lines: list[str], given: str | None) -> str | None:
+    """A value that matches none of a Union's types (e.g. `--trainer.precision fp8`) as `expected one of <the
+    choices>, got <value>`: every Literal's values and the other types in words; None if the message lists none."""
+    subtypes = next((line.removeprefix("Subtypes: ") for line in lines if line.startswith("Subtypes: ")), None)
+    if subtypes is None:
+        return None
+    choices: list[str] = []
+    for literal, kind in re.findall(r"Literal\[([^\]]*)\]|<class '([\w.]+)'>", subtypes):
+        if literal:
+            choices += [value.strip().strip("'\"") for value in literal.split(",")]
+        elif kind:
+            choices.append("null" if kind == "NoneType" else TYPE_WORDS.get(kind, kind))
+    if not choices:
+        return None
+    choices = list(dict.fromkeys(choices))
+    return f"expected one of {', '.join(choices)}; got {given if given is not None else 'another value'}"
 
 
 def _nested_key(lines: list[str], start: int) -> tuple[list[str], str | None, str | None]:
@@ -93,7 +111,10 @@ def parser_error_line(message: str, parser: Any) -> tuple[str, str]:
         if not detail and len(lines) > 1:
             detail = lines[1]
         given = next((line.removeprefix("Given value: ") for line in lines if line.startswith("Given value: ")), None)
-        detail = _cause(detail, given)
+        if detail.startswith("Does not validate against any of the Union subtypes"):
+            detail = _union_cause(lines, given) or detail
+        else:
+            detail = _cause(detail, given)
     if detail.startswith("Problems parsing config") and len(lines) > 1:  # YAML: keep where and what
         detail = " ".join(lines).replace('in "<unicode string>", ', "")
     if match := re.match(r"unrecognized arguments: (.*)$", detail):

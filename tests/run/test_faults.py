@@ -225,6 +225,39 @@ def test_counts_must_be_positive(option, value, expected, tmp_path):
     assert not (tmp_path / "run").exists()
 
 
+# Values that would fail inside Lightning or torch: one line naming the option, the value and what is allowed; no run
+# folder. (The demo's scene, 3 train views of 128x96 = 36864 pixels, without sparse depth: no SfM.)
+@pytest.mark.parametrize(("args", "expected"), [
+    (["--data.init_args.rays_per_batch", "40000"], "--data.init_args.rays_per_batch: 40000 is more than the 36864 "
+     "training pixels (3 train views of 128x96); use at most 36864"),
+    (["--model.optimizer.init_args.lr", "-0.001"], "--model.optimizer (torch.optim.Adam): Invalid learning rate: "
+     "-0.001"),
+    (["--model.optimizer.init_args.betas", "[0.9, 1.5]"], "--model.optimizer (torch.optim.Adam): Invalid beta "
+     "parameter at index 1: 1.5"),
+    (["--model.lr_scheduler.init_args.decay_rate", "0"], "--model.lr_scheduler "
+     "(simplenerf.method.optim.ExponentialDecay): decay_rate and decay_steps must be positive, got 0.0, 500"),
+    (["--model.group_lr", "{other: -1}"], "--model.group_lr: the learning rate of group 'other' is -1.0; expected a "
+     "number >= 0"),
+    (["--model.group_lr", "{grid: 0.1}"], "--model.group_lr: group_lr names ['grid'], but the parameter groups are "
+     "['mlp']"),
+    (["--trainer.precision", "fp8"], "--trainer.precision: expected one of 64, 32, 16, transformer-engine, "
+     "transformer-engine-float16, 16-true, 16-mixed, bf16-true, bf16-mixed, 32-true, 64-true, bf16, null; got fp8"),
+    (["--viewer", "true", "--viewer_port", "99999"], "--viewer_port: expected a port number 0-65535, got 99999"),
+])
+def test_values_that_would_fail_inside_lightning_stop_at_the_command_line(args, expected, tmp_path):
+    proc = run("fit", *run_args(tmp_path), "--data.init_args.sparse_rays_per_batch", "0", *args, check=False)
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert proc.stderr.strip().splitlines()[0] == f"{ERROR}{expected}"
+    assert "Traceback" not in proc.stderr and not (tmp_path / "run").exists()
+
+
+def test_a_port_out_of_range_is_one_line(tmp_path):
+    proc = run("view", str(tmp_path), "--port", "99999", check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[0] == (
+        f"{ERROR}argument --port: expected a port number 0-65535 (0: any free one), got 99999")
+
+
 def test_parser_errors_keep_their_cause(tmp_path):
     proc = run("fit", "--config", "configs/demo.yaml", "--model.chunk", "abc", check=False)
     assert proc.returncode == 2

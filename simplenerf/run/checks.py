@@ -204,6 +204,28 @@ def check_model_meets_data(model: SimpleNeRF, n_train: int | None, stage: str) -
         )
 
 
+# Trainer options Lightning applies only under automatic optimisation: SimpleNeRF optimises manually (one update per
+# step, `SimpleNeRF.training_step`), so they would change nothing (or stop inside Lightning): refused up front.
+MANUAL_OPTIMISATION_IGNORES = {"gradient_clip_val": None, "gradient_clip_algorithm": None, "accumulate_grad_batches": 1}
+
+
+def check_trainer_options(trainer: L.Trainer, model: L.LightningModule) -> None:
+    """SimpleNeRFError naming the first trainer option that the model's manual optimisation ignores, if set."""
+    if getattr(model, "automatic_optimization", True):
+        return
+    values = {"gradient_clip_val": trainer.gradient_clip_val,
+              "gradient_clip_algorithm": trainer.gradient_clip_algorithm,
+              "accumulate_grad_batches": trainer.accumulate_grad_batches}
+    for name, default in MANUAL_OPTIMISATION_IGNORES.items():
+        value = getattr(values[name], "value", values[name])  # the clipping algorithm is an enum
+        if value is not None and value != default:
+            raise SimpleNeRFError(
+                f"--trainer.{name} {value}: SimpleNeRF optimises manually (one update per step), which "
+                f"Lightning's {name} does not apply to; leave it unset (a larger --data.init_args.rays_per_batch with "
+                "--model.rays_per_backward accumulates gradients over a batch's parts)"
+            )
+
+
 def _described(config: dict | None, key: str, default: str) -> str:
     """`--model.<key> (<class>)`, the option a refusal names, with the class the config gives it."""
     node = (config or {}).get(key)

@@ -50,6 +50,7 @@ from simplenerf.run.checks import (
     check_checkpoint_fits,
     check_model_meets_data,
     check_optimisation,
+    check_trainer_options,
     check_writable,
     kept_checkpoints,
     preflight_inputs,
@@ -121,6 +122,12 @@ class SimpleNeRFCLI(LightningCLI):
             self._held_logs.release(emit=False)
             raise
         self._held_logs.release()
+
+    def init_parser(self, **kwargs: Any) -> LightningArgumentParser:
+        """Every parser (the main one and each subcommand's) without option abbreviations: `--trainer.max_step 5`
+        is an unknown option (with the hint of the full name), not a silent `--trainer.max_steps`."""
+        kwargs.setdefault("allow_abbrev", False)
+        return super().init_parser(**kwargs)
 
     def parse_arguments(self, parser: LightningArgumentParser, args: Any) -> None:
         """As Lightning's, without its warning against giving `args` while sys.argv holds arguments: `make_cli`
@@ -194,6 +201,7 @@ class SimpleNeRFCLI(LightningCLI):
         # Bad input (a missing scene, missing LPIPS weights, a checkpoint that does not fit) stops here, before
         # loggers or outputs create anything: the data module and every callback that declares pre-flight checks
         # (`simplenerf.run.checks`: ChecksModel, ChecksInputs, ChecksOutputs) run them.
+        check_trainer_options(self.trainer, self.model)
         data = self.datamodule if isinstance(self.datamodule, SceneDataModule) else None
         check_model_meets_data(self.model, data.n_views if data is not None else None, subcommand)
         try:
@@ -324,16 +332,48 @@ def without_subcommand_keys(args: list[str], drop: tuple[str, ...]) -> list[str]
     return out
 
 
+class DuplicateKey(Exception):
+    def __init__(self, key: Any, first: int, second: int) -> None:
+        super().__init__(key)
+        self.key, self.first, self.second = key, first, second
+
+
+class UniqueKeyLoader(yaml.SafeLoader):
+    """YAML's safe loader, refusing a key given twice in one mapping (`DuplicateKey`: the key and both lines),
+    which YAML libraries accept with the later value."""
+
+
+def _unique_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    seen: dict[Any, int] = {}
+    for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge":
+            continue
+        key = loader.construct_object(key_node, deep=True)
+        try:
+            if key in seen:
+                raise DuplicateKey(key, seen[key], key_node.start_mark.line + 1)
+            seen[key] = key_node.start_mark.line + 1
+        except TypeError:  # an unhashable key: the loader itself says so
+            pass
+    return loader.construct_mapping(node, deep)
+
+
+UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
+
+
 def check_config_files(args: list[str]) -> None:
-    """Each `--config FILE` given must be readable YAML: else one line naming the file, line and column (the
-    parser itself reads the text and would lose the file's name)."""
+    """Each `--config FILE` given must be readable YAML without a key given twice: else one line naming the file,
+    line and column (the parser itself reads the text and would lose the file's name)."""
     paths = [args[i + 1] for i, arg in enumerate(args[:-1]) if arg == "--config"]
     paths += [arg.split("=", 1)[1] for arg in args if arg.startswith("--config=")]
     for path in paths:
         if not Path(path).is_file():
             continue
         try:
-            yaml.safe_load(Path(path).read_text())
+            yaml.load(Path(path).read_text(), Loader=UniqueKeyLoader)  # noqa: S506 (a SafeLoader)
+        except DuplicateKey as e:
+            raise SimpleNeRFError(f"config file {path}: key {e.key!r} is given twice in one mapping, at line "
+                                  f"{e.first} and line {e.second} (the later would silently win); keep one") from None
         except UnicodeDecodeError:
             raise SimpleNeRFError(f"config file {path} is not text (UTF-8 YAML)") from None
         except OSError as e:
@@ -387,6 +427,7 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
         parser_class=OneLineErrorParser,
         parser_kwargs={"prog": PROG, "description": DESCRIPTION},
         seed_everything_default=0,
+        auto_configure_optimizers=False,  # the optimiser is the model's (`model.optimizer`, `model.lr_scheduler`)
         run=run,
         args=without_subcommand_keys(given, drop),
     )

@@ -243,12 +243,37 @@ def test_counts_must_be_positive(option, value, expected, tmp_path):
     (["--trainer.precision", "fp8"], "--trainer.precision: expected one of 64, 32, 16, transformer-engine, "
      "transformer-engine-float16, 16-true, 16-mixed, bf16-true, bf16-mixed, 32-true, 64-true, bf16, null; got fp8"),
     (["--viewer", "true", "--viewer_port", "99999"], "--viewer_port: expected a port number 0-65535, got 99999"),
+    # Options manual optimisation does not honour, and abbreviations, which are not taken as the full name.
+    (["--trainer.gradient_clip_val", "0.5"], "--trainer.gradient_clip_val 0.5: SimpleNeRF optimises manually (one "
+     "update per step), which Lightning's gradient_clip_val does not apply to; leave it unset (a larger "
+     "--data.init_args.rays_per_batch with --model.rays_per_backward accumulates gradients over a batch's parts)"),
+    (["--trainer.accumulate_grad_batches", "2"], "--trainer.accumulate_grad_batches 2: SimpleNeRF optimises manually"
+     " (one update per step), which Lightning's accumulate_grad_batches does not apply to; leave it unset (a larger "
+     "--data.init_args.rays_per_batch with --model.rays_per_backward accumulates gradients over a batch's parts)"),
+    (["--optimizer", "torch.optim.SGD"], "unrecognized arguments: --optimizer torch.optim.SGD"),
+    (["--trainer.max_step", "5"], "unrecognized arguments: --trainer.max_step 5"),
 ])
 def test_values_that_would_fail_inside_lightning_stop_at_the_command_line(args, expected, tmp_path):
     proc = run("fit", *run_args(tmp_path), "--data.init_args.sparse_rays_per_batch", "0", *args, check=False)
     assert proc.returncode == 2, proc.stderr[-3000:]
     assert proc.stderr.strip().splitlines()[0] == f"{ERROR}{expected}"
     assert "Traceback" not in proc.stderr and not (tmp_path / "run").exists()
+
+
+def test_a_key_given_twice_in_a_config_is_one_line_naming_both(tmp_path):
+    config = tmp_path / "twice.yaml"
+    config.write_text("trainer:\n  max_steps: 3\n  val_check_interval: 2\n  max_steps: 4\n")
+    proc = run("fit", "--config", "configs/demo.yaml", "--config", str(config), "--trainer.default_root_dir",
+               str(tmp_path / "run"), check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        f"{ERROR}config file {config}: key 'max_steps' is given twice in one mapping, at line 2 and line 4 (the later "
+        "would silently win); keep one"]
+    assert not (tmp_path / "run").exists()
+    # The optimiser is the model's: Lightning's own --optimizer / --lr_scheduler are not offered.
+    help_text = run("fit", "--help").stdout
+    assert "--model.optimizer" in help_text and "\n  --optimizer" not in help_text
+    assert "\n  --lr_scheduler" not in help_text
 
 
 def test_a_port_out_of_range_is_one_line(tmp_path):

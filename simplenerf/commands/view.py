@@ -52,6 +52,11 @@ def resolve_run(run: Path, configs: list[str] | None) -> tuple[list[str], Path, 
     """(config files, checkpoint, run folder) of RUN, a run folder or a checkpoint file."""
     if run.is_dir():
         found = checkpoints_newest_first(run / "checkpoints")
+        scene_files = [name for name in ("poses_bounds.npy", "images", "frames") if (run / name).exists()]
+        if not found and scene_files and not (run / "config.yaml").exists():
+            raise DataError(f"{run} is a scene folder ({', '.join(scene_files)}), not a run: view shows a trained "
+                            f"run; train one on it first (`simplenerf fit --config ... --data.init_args.scene_dir "
+                            f"{run}`), then view its run folder")
         if not found:
             raise RunFolderError(f"run folder {run} has no checkpoint ({run / 'checkpoints'}/*.ckpt): train it first "
                                  f"(`simplenerf fit ...`), or give a checkpoint file")

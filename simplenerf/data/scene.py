@@ -19,6 +19,7 @@ from torch.utils.data import DataLoader
 
 from simplenerf.data.datasets import Frames, RandomRays, SparseDepthPool
 from simplenerf.errors import DataError
+from simplenerf.metrics.duplicates import describe_duplicates, near_duplicates, thumbnail
 from simplenerf.geometry.trajectories import TrajectoryKind, llff_spiral, recorded_trajectory
 from simplenerf.geometry.views import Views
 from simplenerf.sfm.sparse_depth import load_or_compute_sparse_depth
@@ -143,6 +144,13 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
                     f"--data.init_args.rays_per_batch: {self.rays_per_batch} is more than the {pixels} training pixels "
                     f"({len(train)} train views of {train.width}x{train.height}); use at most {pixels}"
                 )
+            images = train.images.detach().cpu().float().numpy()
+            if same := near_duplicates([thumbnail(image) for image in images], list(train.names)):
+                raise DataError(
+                    f"train images {describe_duplicates(same)} of {self.scene.source} are identical or nearly (mean "
+                    "difference under 2/255): a NeRF needs views from different positions; check the scene's images "
+                    "(a copied file?), or choose other train frames (--data.init_args.train_frames)"
+                )
         self.setup(stage)
 
     def setup(self, stage: str) -> None:
@@ -158,7 +166,7 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
         print(f"sparse depth: SfM on train views {self.scene.split.train} of {self.scene.source} "
               f"(cached in {self.sparse_depth_cache}) ...", flush=True)
         per_view = load_or_compute_sparse_depth(self.sparse_depth_cache, key, train.images, train.intrinsics,
-                                                train.c2w)
+                                                train.c2w, image_names=list(train.names))
         for i, sd in zip(self.scene.split.train, per_view, strict=True):
             print(f"  frame {i}: {len(sd)} points, median reprojection error "
                   f"{np.median(sd.reprojection_error):.2f} px", flush=True)

@@ -18,7 +18,7 @@ import lightning as L
 import torch
 from lightning.pytorch.utilities import rank_zero_only
 
-from simplenerf.errors import CheckpointError, DataError, RunFolderError, SimpleNeRFError, unwritable
+from simplenerf.errors import CheckpointError, DataError, RunFolderError, SimpleNeRFError, absent, unwritable
 from simplenerf.method.module import SimpleNeRF
 
 
@@ -66,7 +66,7 @@ SPECIAL_CHECKPOINTS = ("best", "hpc")  # Lightning's own meanings of --ckpt_path
 def read_checkpoint(path: Path) -> dict:
     """The checkpoint at `path` loaded on the CPU; CheckpointError naming the file if it is missing or unreadable."""
     if not path.is_file():
-        raise CheckpointError(f"checkpoint {path} does not exist")
+        raise CheckpointError(f"checkpoint {path} {absent(path, folder=False)}")
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as e:  # a truncated zip, a pickle of something else, an empty file: all unreadable

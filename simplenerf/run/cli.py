@@ -31,7 +31,7 @@ from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveCon
 from lightning.pytorch.utilities import rank_zero_only
 
 from simplenerf.data.scene import SceneDataModule
-from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged
+from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged, absent
 from simplenerf.evaluation.evaluator import Evaluator
 from simplenerf.method.module import SimpleNeRF
 from simplenerf.metrics.lpips import LPIPSWeightsNotFound
@@ -235,6 +235,7 @@ class SimpleNeRFCLI(LightningCLI):
             release_run_folder(run_folder)  # a folder this command created is removed again
             raise
         self._held_logs.release()
+        signals.at_step_end = subcommand == "fit"  # a test frame can take minutes: test stops at once
         scene = data.scene if data is not None else None
         if subcommand == "test" and scene is not None and not scene.split.test:
             from simplenerf.viz.export import render_without_test_frames
@@ -440,7 +441,7 @@ def load_for_tool(
     without a logger, its data module set up for `stage` and, with `ckpt`, the model's trained weights loaded (eval
     mode, on `device`)."""
     if ckpt is not None and not Path(ckpt).is_file():
-        raise DataError(f"checkpoint {ckpt} does not exist")
+        raise DataError(f"checkpoint {ckpt} {absent(ckpt, folder=False)}")
     cli = make_cli([*(a for c in configs for a in ("--config", c)), *overrides, "--trainer.logger", "false"], run=False)
     cli.datamodule.setup(stage)
     if ckpt is not None:

@@ -42,6 +42,7 @@ from tqdm import tqdm
 from simplenerf.errors import DataError, SfMError
 from simplenerf.geometry.alignment import CameraAlignment, align_cameras
 from simplenerf.geometry.poses import poses_to_opengl, to_poses_bounds
+from simplenerf.metrics.duplicates import describe_duplicates, near_duplicates, thumbnail
 from simplenerf.sfm.colmap import opengl_c2w_of_image
 from simplenerf.sfm.mapping import ADVICE, CAMERA_MODELS, SfMResult, run_sfm
 from simplenerf.sfm.photo_files import (
@@ -185,14 +186,19 @@ def _process(
         sizes.append((width, height) if transposed else (height, width))
     height, width = downscaled_size(*common_size(sizes), max_size)
     names = [f"{p.stem}.png" for p in paths]
-    resized, focal_priors = [], []
+    resized, focal_priors, thumbnails = [], [], []
     for path, name, size in tqdm(list(zip(paths, names, sizes, strict=True)), desc="reading photos", unit="photo"):
         photo = read_photo(path)
         image, factor = fit_to_size(photo.image, height, width)
+        thumbnails.append(thumbnail(image))
         if size != (height, width):
             resized.append({"photo": path.name, "size": list(size), "scale": round(factor, 6)})
         focal_priors.append(None if photo.focal is None else photo.focal * factor)
         _write_image(work / "photos" / name, image)
+    if same := near_duplicates(thumbnails, [p.name for p in paths]):
+        raise SfMError(f"photos {describe_duplicates(same)} in {paths[0].parent} are identical or nearly (mean "
+                       "difference under 2/255): structure from motion needs photos from different positions; remove "
+                       "the copies")
     with_prior = [f for f in focal_priors if f is not None]
     log(f"photos: {len(paths)} from {paths[0].parent}, used at {width}x{height}"
         + (f" ({len(resized)} cropped/resized to that size)" if resized else "")

@@ -11,8 +11,11 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 import torch
 
@@ -138,17 +141,19 @@ def test_a_lock_left_by_a_killed_process_is_taken_over(tmp_path):
 
 
 def test_a_stopped_test_leaves_no_partial_results(resumed, tmp_path):
-    """SIGTERM after the first of 3 test frames: exit status 143, earlier results kept, no test.partial."""
+    """SIGTERM after the first of 3 test frames, while the test works on (120 s, as a frame on a slow CPU): it stops
+    within seconds, exit status 143, earlier results kept, no test.partial."""
     run_dir = resumed / "run"
     earlier = run_dir / "test"
     earlier.mkdir(exist_ok=True)
     (earlier / "summary.json").write_text("earlier results")
-    slow = ["--trainer.callbacks+=tests.custom_callbacks.SlowTest", "--trainer.callbacks.seconds", "5"]
+    slow = ["--trainer.callbacks+=tests.custom_callbacks.SlowTest", "--trainer.callbacks.seconds", "120"]
     test = start(tmp_path, "test", *run_args(resumed), "--ckpt_path", "last", "--evaluation.lpips", "false", *slow)
     wait_for(test, "frame 0 done")
+    sent = time.monotonic()
     test.send_signal(signal.SIGTERM)
     status, stderr = finish(test)
-    assert status == 143
+    assert status == 143 and time.monotonic() - sent < 30
     assert stderr.strip().splitlines()[-1] == (
         f"{ERROR}test stopped by SIGTERM before it finished: no results were written (earlier results are kept)")
     assert (earlier / "summary.json").read_text() == "earlier results"
@@ -252,11 +257,20 @@ def test_counts_must_be_positive(option, value, expected, tmp_path):
      "--data.init_args.rays_per_batch with --model.rays_per_backward accumulates gradients over a batch's parts)"),
     (["--optimizer", "torch.optim.SGD"], "unrecognized arguments: --optimizer torch.optim.SGD"),
     (["--trainer.max_step", "5"], "unrecognized arguments: --trainer.max_step 5"),
+    # Lines that end with their cause: the class, the kind of path.
+    (["--model.nerf.init_args.coarse.class_path", "simplenerf.model.fields.Nope"], "--model.nerf.init_args.coarse: "
+     "class_path simplenerf.model.fields.Nope: module 'simplenerf.model.fields' has no attribute 'Nope'"),
+    (["--data", "torch.nn.Linear"], "--data: class_path torch.nn.Linear: Import path does not correspond to a "
+     "subclass of LightningDataModule"),
+    (["--data", "simplenerf.data.llff.LLFFDataModule", "--data.init_args.scene_dir", "{tmp}/tiny_model.yaml"],
+     "scene directory {tmp}/tiny_model.yaml is a file, not a folder"),
+    (["--ckpt_path", "{tmp}"], "checkpoint {tmp} is a folder, not a file"),
 ])
 def test_values_that_would_fail_inside_lightning_stop_at_the_command_line(args, expected, tmp_path):
+    args = [arg.replace("{tmp}", str(tmp_path)) for arg in args]
     proc = run("fit", *run_args(tmp_path), "--data.init_args.sparse_rays_per_batch", "0", *args, check=False)
     assert proc.returncode == 2, proc.stderr[-3000:]
-    assert proc.stderr.strip().splitlines()[0] == f"{ERROR}{expected}"
+    assert proc.stderr.strip().splitlines()[0] == f"{ERROR}{expected.replace('{tmp}', str(tmp_path))}"
     assert "Traceback" not in proc.stderr and not (tmp_path / "run").exists()
 
 
@@ -274,6 +288,55 @@ def test_a_key_given_twice_in_a_config_is_one_line_naming_both(tmp_path):
     help_text = run("fit", "--help").stdout
     assert "--model.optimizer" in help_text and "\n  --optimizer" not in help_text
     assert "\n  --lr_scheduler" not in help_text
+
+
+def test_a_scene_folder_given_to_view_is_called_a_scene(synthetic_scene):
+    proc = run("view", str(synthetic_scene), check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        f"{ERROR}{synthetic_scene} is a scene folder (poses_bounds.npy, images), not a run: view shows a trained run; "
+        f"train one on it first (`simplenerf fit --config ... --data.init_args.scene_dir {synthetic_scene}`), then "
+        "view its run folder"]
+
+
+def llff_fit(scene: Path, tmp: Path, *extra: str) -> subprocess.CompletedProcess:
+    """fit of the DS-NeRF config on the LLFF-layout `scene` at factor 1, train frames 0, 5, 10, run folder tmp/run."""
+    return run("fit", "--config", "configs/dsnerf.yaml", "--data.init_args.scene_dir", str(scene),
+               "--data.init_args.factor", "1", "--data.init_args.train_frames", "[0, 5, 10]",
+               "--trainer.default_root_dir", str(tmp / "run"), "--trainer.logger", "false",
+               "--data.init_args.sparse_depth_cache", str(tmp / "cache"), *extra, check=False)
+
+
+def test_identical_train_images_and_sfm_failures_name_the_scenes_files(synthetic_scene, tmp_path):
+    scene = Path(shutil.copytree(synthetic_scene, tmp_path / "scene"))
+    # | a train image copied over another, sparse depth off | named before training |
+    shutil.copyfile(scene / "images" / "000.png", scene / "images" / "005.png")
+    proc = llff_fit(scene, tmp_path, "--data.init_args.sparse_rays_per_batch", "0")
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        f"{ERROR}train images 000 and 005 of {scene} are identical or nearly (mean difference under 2/255): a "
+        "NeRF needs views from different positions; check the scene's images (a copied file?), or choose other train "
+        "frames (--data.init_args.train_frames)"]
+    # | a blank train image, SfM for sparse depth | the scene's file is named, not COLMAP's temporary copy |
+    shutil.copyfile(synthetic_scene / "images" / "005.png", scene / "images" / "005.png")
+    blank = np.full((48, 64, 3), 128, np.uint8)
+    assert cv2.imwrite(str(scene / "images" / "010.png"), blank)
+    proc = llff_fit(scene, tmp_path)
+    assert proc.returncode == 2
+    line = proc.stderr.strip().splitlines()[-1]
+    assert line.startswith(f"{ERROR}image 2 (010) has no SIFT features: textureless "), line
+    assert "0002.png" not in proc.stderr and not (tmp_path / "run").exists()
+
+
+def test_fit_checks_the_lpips_weights_of_its_test_before_training(tmp_path):
+    env = {"SIMPLENERF_LPIPS_WEIGHTS": str(tmp_path / "missing.npz"), "TORCH_HOME": str(tmp_path / "hub")}
+    proc = run("fit", *run_args(tmp_path), "--data.init_args.sparse_rays_per_batch", "0", env=env, check=False)
+    assert proc.returncode == 2
+    [line] = proc.stderr.strip().splitlines()
+    assert line.startswith(f"{ERROR}the test of this run (--evaluation.lpips true) will need LPIPS weights, checked "
+                           f"before training: SIMPLENERF_LPIPS_WEIGHTS={tmp_path / 'missing.npz'} does not name an "
+                           "existing file.")
+    assert "`--evaluation.lpips false`" in line and not (tmp_path / "run").exists()
 
 
 def test_a_port_out_of_range_is_one_line(tmp_path):
@@ -398,6 +461,17 @@ def test_process_data_overwrite_replaces_only_its_own_files_and_ctrl_c_writes_no
         [MARKER, "images", "images_4", "notes.txt", "poses_bounds.npy", "sfm_report.json", "sfm_top_view.png"])
     assert (out / "notes.txt").read_text() == "mine"
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_process_data_names_identical_photos_before_sfm(photos, tmp_path):
+    copy = Path(shutil.copytree(photos, tmp_path / "photos"))
+    shutil.copyfile(copy / "000.png", copy / "006.png")
+    proc = run("process-data", "--images", str(copy), "--output", str(tmp_path / "scene"), check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1] == (
+        f"{ERROR}photos 000.png and 006.png in {copy} are identical or nearly (mean difference under 2/255): structure "
+        "from motion needs photos from different positions; remove the copies")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["photos"]
 
 
 def test_process_data_judges_an_implausible_camera():

@@ -33,7 +33,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
 RUN_LAYERS: tuple[tuple[str, ...], ...] = (
     ("signals", "memory", "loggers"),  # SIGINT/SIGTERM; the allocator; W&B
     ("console", "checks", "resume", "lock"),  # one-line errors (a stop by a signal); pre-flight; run records; the lock
-    ("callbacks",),  # every callback a run uses (RunRecord from resume)
+    ("callbacks", "config_files"),  # every callback a run uses (RunRecord from resume); the --config files
     ("cli",),  # the LightningCLI
 )
 # Parts that import no other part of the package at all.

@@ -19,9 +19,9 @@ from torch.utils.data import DataLoader
 
 from simplenerf.data.datasets import Frames, RandomRays, SparseDepthPool
 from simplenerf.errors import DataError
-from simplenerf.metrics.duplicates import describe_duplicates, near_duplicates, thumbnail
 from simplenerf.geometry.trajectories import TrajectoryKind, llff_spiral, recorded_trajectory
 from simplenerf.geometry.views import Views
+from simplenerf.metrics.duplicates import describe_duplicates, near_duplicates, thumbnail
 from simplenerf.sfm.sparse_depth import load_or_compute_sparse_depth
 
 

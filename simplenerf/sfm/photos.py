@@ -54,7 +54,14 @@ from simplenerf.sfm.photo_files import (
     undistort,
     undistortion,
 )
-from simplenerf.sfm.process_checks import MARKER, check_output_folder, check_writable_parent, judge, replace_output
+from simplenerf.sfm.process_checks import (
+    MARKER,
+    check_output_folder,
+    check_writable_parent,
+    folder_mode,
+    judge,
+    replace_output,
+)
 from simplenerf.sfm.top_view import top_view_picture
 
 BOUND_PERCENTILES = (0.1, 99.9)  # LLFF's pose_utils.save_poses: np.percentile(zs, .1), np.percentile(zs, 99.9)
@@ -133,6 +140,7 @@ def process_photos(
         raise DataError(f"camera model {camera_model!r} is not one of {', '.join(CAMERA_MODELS)}")
     try:
         partial = Path(tempfile.mkdtemp(prefix=f".{output_dir.name}.partial-", dir=output_dir.parent))
+        partial.chmod(folder_mode())  # mkdtemp's 0700 would become the scene folder's: others could not read it
     except OSError as e:
         raise DataError(f"cannot write the output {output_dir}: {e.strerror or e}") from None
     try:
@@ -142,8 +150,10 @@ def process_photos(
         report["problems"] = judge(report)
         (partial / "sfm_report.json").write_text(json.dumps(report, indent=2) + "\n")
         entries = sorted(p.name for p in partial.iterdir())
+        files = sorted(p.relative_to(partial).as_posix() for p in partial.rglob("*") if p.is_file())
         (partial / MARKER).write_text(json.dumps({"written_by": "simplenerf process-data",
-                                                  "entries": [*entries, MARKER]}, indent=2) + "\n")
+                                                  "entries": [*entries, MARKER], "files": [*files, MARKER]},
+                                                 indent=2) + "\n")
         replace_output(partial, output_dir)
     except OSError as e:
         shutil.rmtree(partial, ignore_errors=True)

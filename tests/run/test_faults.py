@@ -9,6 +9,7 @@ import json
 import os
 import shutil
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -210,6 +211,18 @@ def test_a_resume_or_test_with_other_settings_stops_unless_allowed(resumed):
     [line] = proc.stderr.strip().splitlines()
     assert line.startswith(f"{ERROR}this test differs from the run of checkpoint {last} (step 8) in scene.scene: ")
     assert f"seed0_96x128_20 -> {resumed / 'data' / 'seed1_96x128_20'}; " in line
+
+
+def test_a_copied_runs_config_tests_the_copy(resumed, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(resumed / "run" / "checkpoints", copy / "checkpoints")
+    shutil.copyfile(resumed / "run" / "config.yaml", copy / "config.yaml")
+    before = sorted(p.name for p in (resumed / "run").iterdir())
+    proc = run("test", "--config", str(copy / "config.yaml"), "--ckpt_path", "last", "--evaluation.lpips", "false")
+    assert (f"simplenerf: {copy / 'config.yaml'} is the config of a run trained in {resumed / 'run'}; using the run "
+            f"where the file is, {copy}") in proc.stderr.splitlines()
+    assert json.loads((copy / "test" / "summary.json").read_text())["checkpoint"].startswith(str(copy))
+    assert sorted(p.name for p in (resumed / "run").iterdir()) == before  # the original is not touched
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -455,11 +468,20 @@ def test_process_data_overwrite_replaces_only_its_own_files_and_ctrl_c_writes_no
     assert set(marker["entries"]) == {"images", "images_2", "poses_bounds.npy", "sfm_report.json", "sfm_top_view.png",
                                       MARKER}
     assert json.loads((out / "sfm_report.json").read_text())["problems"] == []  # the synthetic cameras are sane
+    assert "images/000.png" in marker["files"] and "images_2/000.png" in marker["files"]
+    # | folders | with the user's umask (readable by others under umask 022), not mkdtemp's 0700 |
+    mask = os.umask(0)
+    os.umask(mask)
+    for folder in (out, out / "images", out / "images_2"):
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o777 & ~mask, folder
+    # | --overwrite onto its own output | exactly the files it wrote are replaced; the user's files stay |
     (out / "notes.txt").write_text("mine")
+    (out / "images" / "mine.txt").write_text("mine too")
     run("process-data", "--images", str(photos), "--output", str(out), "--factors", "4", "--overwrite")
     assert sorted(p.name for p in out.iterdir()) == sorted(
         [MARKER, "images", "images_4", "notes.txt", "poses_bounds.npy", "sfm_report.json", "sfm_top_view.png"])
-    assert (out / "notes.txt").read_text() == "mine"
+    assert (out / "notes.txt").read_text() == "mine" and (out / "images" / "mine.txt").read_text() == "mine too"
+    assert sorted(p.name for p in (out / "images").iterdir()) == [*(f"{i:03d}.png" for i in range(6)), "mine.txt"]
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 

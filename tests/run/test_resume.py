@@ -8,7 +8,7 @@ import yaml
 
 from simplenerf.data.synthetic import SyntheticDataModule
 from simplenerf.method.module import SimpleNeRF
-from simplenerf.run.cli import without_subcommand_keys
+from simplenerf.run.config_files import without_subcommand_keys
 from simplenerf.run.resume import (
     NO_DEFAULT,
     RECORD_KEY,

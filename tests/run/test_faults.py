@@ -124,6 +124,19 @@ def test_sigterm_and_sigint_stop_fit_with_a_checkpoint_and_a_busy_folder_is_refu
     assert stderr.strip().splitlines()[-1].startswith(f"{ERROR}fit stopped by SIGINT at step {last_step(last)}; ")
 
 
+def test_importing_pycolmap_keeps_the_python_sigterm_handler():
+    """COLMAP's glog installs a SIGTERM handler at import that prints a native stack dump (`simplenerf sweep` imports
+    pycolmap after its handlers are set): `simplenerf.sfm` sets the Python handler again."""
+    code = ("import os, signal, sys\n"
+            "def stop(signum, frame):\n    sys.exit(3)\n"
+            "signal.signal(signal.SIGTERM, stop)\n"
+            "import simplenerf.sfm.colmap\n"
+            "os.kill(os.getpid(), signal.SIGTERM)\n"
+            "import time; time.sleep(10)\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 3 and "SIGTERM" not in proc.stderr, proc.stderr[-2000:]
+
+
 def test_a_lock_left_by_a_killed_process_is_taken_over(tmp_path):
     """SIGKILL leaves the lock file but not the lock: the kernel releases it with the process."""
     from simplenerf.errors import RunFolderError

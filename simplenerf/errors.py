@@ -45,6 +45,17 @@ class Stopped(SimpleNeRFError):
         self.exit_status = 128 + int(signum)
 
 
+def absent(path: Path, folder: bool) -> str:
+    """Why `path` is not the folder (`folder`) or file expected, for an error line after its name: it "does not
+    exist", or it is the other kind."""
+    path = Path(path)
+    if not path.exists():
+        return "does not exist"
+    if path.is_dir():
+        return "is a folder, not a file"
+    return "is a file, not a folder" if folder else "is not a regular file"
+
+
 def unwritable(folder: Path) -> str | None:
     """Why `folder` cannot be created and written (a file written there, then deleted), or None if it can: the reason
     both the run-folder check and process-data's output check put in their error."""

@@ -29,6 +29,12 @@ def require_shared(relative: str) -> Path:
     return path
 
 
+# `fit` checks the LPIPS weights its test will need before training: the shared data's copy, unless a test names
+# other weights (or none) or the environment does.
+if (_lpips_weights := shared_dir() / "data" / "lpips" / "alexnet_trunk_and_lpips_lin_v0.1.npz").is_file():
+    os.environ.setdefault("SIMPLENERF_LPIPS_WEIGHTS", str(_lpips_weights))
+
+
 @pytest.fixture(scope="session")
 def synthetic_scene(tmp_path_factory) -> Path:
     """A 20-frame synthetic scene at 48x64 (factor 1) with exact depth."""

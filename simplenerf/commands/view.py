@@ -25,12 +25,23 @@ from simplenerf.run.console import HeldLogs
 from simplenerf.viewer.server import Viewer, check_port
 
 
+def port_number(text: str) -> int:
+    """argparse's type of --port: an integer 0-65535."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a port number 0-65535 (0: any free one), got {text}")
+    return port
+
+
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = CommandParser("view", __doc__)
     parser.add_argument("run", help="a run folder (trainer.default_root_dir of a fit) or a checkpoint file")
     parser.add_argument("--config", action="append", help="config file(s) of the run (default: <run>/config.yaml)")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
-    parser.add_argument("--port", type=int, default=8080, help="port (0: any free one)")
+    parser.add_argument("--port", type=port_number, default=8080, help="port, 0-65535 (0: any free one)")
     parser.add_argument("--resolution", type=int, help="larger side of the finest render (default: the photos')")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu", help="torch device")
     parser.add_argument("--out", help="folder of screenshots and camera paths (default: <run>/viewer)")
@@ -41,6 +52,11 @@ def resolve_run(run: Path, configs: list[str] | None) -> tuple[list[str], Path, 
     """(config files, checkpoint, run folder) of RUN, a run folder or a checkpoint file."""
     if run.is_dir():
         found = checkpoints_newest_first(run / "checkpoints")
+        scene_files = [name for name in ("poses_bounds.npy", "images", "frames") if (run / name).exists()]
+        if not found and scene_files and not (run / "config.yaml").exists():
+            raise DataError(f"{run} is a scene folder ({', '.join(scene_files)}), not a run: view shows a trained "
+                            f"run; train one on it first (`simplenerf fit --config ... --data.init_args.scene_dir "
+                            f"{run}`), then view its run folder")
         if not found:
             raise RunFolderError(f"run folder {run} has no checkpoint ({run / 'checkpoints'}/*.ckpt): train it first "
                                  f"(`simplenerf fit ...`), or give a checkpoint file")

@@ -25,7 +25,7 @@ import torch
 from jsonargparse.typing import NonNegativeInt, PositiveInt
 
 from simplenerf.data.scene import Scene, SceneDataModule, Split, explicit_split
-from simplenerf.errors import DataError
+from simplenerf.errors import DataError, absent
 from simplenerf.geometry.poses import average_pose, poses_to_opengl, recenter
 from simplenerf.geometry.views import Views
 
@@ -103,7 +103,7 @@ def image_dir(scene_dir: Path, factor: int) -> Path:
 def check_scene(scene_dir: Path, factor: int) -> tuple[list[Path], np.ndarray]:
     """Checks the files of a scene without decoding images; returns the image paths and the poses_bounds array."""
     if not scene_dir.is_dir():
-        raise DataError(f"scene directory {scene_dir} does not exist")
+        raise DataError(f"scene directory {scene_dir} {absent(scene_dir, folder=True)}")
     poses_file = scene_dir / "poses_bounds.npy"
     if not poses_file.is_file():
         raise DataError(f"{poses_file} is missing (LLFF layout: <scene>/poses_bounds.npy and <scene>/images_N/)")
@@ -143,7 +143,7 @@ def read_reference_depth(directory: str | Path, names: list[str], height: int, w
     """Reference depth [V, H, W] in file units from `<directory>/<name>.npy` for each frame name, checked."""
     directory = Path(directory)
     if not directory.is_dir():
-        raise DataError(f"reference depth folder {directory} does not exist")
+        raise DataError(f"reference depth folder {directory} {absent(directory, folder=True)}")
     depths = []
     for name in names:
         path = directory / f"{name}.npy"

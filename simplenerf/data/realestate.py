@@ -29,7 +29,7 @@ from simplenerf.data.llff import (
     read_same_size_images,
 )
 from simplenerf.data.scene import Scene, SceneDataModule, Split, explicit_split
-from simplenerf.errors import DataError
+from simplenerf.errors import DataError, absent
 from simplenerf.geometry.poses import average_pose, recenter
 
 # The paper's train frames in order of use: the first n train the n-view model.
@@ -135,7 +135,7 @@ def load_realestate_scene(
     """Reads the clip of `clip_length` frames from line `clip_start` of the camera file, scaled and recentred."""
     scene_dir = Path(scene_dir)
     if not scene_dir.is_dir():
-        raise DataError(f"scene directory {scene_dir} does not exist")
+        raise DataError(f"scene directory {scene_dir} {absent(scene_dir, folder=True)}")
     camera_file = scene_dir / f"{scene_dir.name}.txt"
     frames_dir = scene_dir / "frames"
     timestamps, normalised, w2c = read_camera_file(camera_file)

@@ -21,6 +21,7 @@ from simplenerf.data.datasets import Frames, RandomRays, SparseDepthPool
 from simplenerf.errors import DataError
 from simplenerf.geometry.trajectories import TrajectoryKind, llff_spiral, recorded_trajectory
 from simplenerf.geometry.views import Views
+from simplenerf.metrics.duplicates import describe_duplicates, near_duplicates, thumbnail
 from simplenerf.sfm.sparse_depth import load_or_compute_sparse_depth
 
 
@@ -133,6 +134,23 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
     def check_inputs(self, stage: str) -> None:
         """Loads everything `stage` needs; the CLI calls this before loggers or outputs start, so bad input (a missing
         or unreadable file, an impossible split, a scene without SfM points) stops the run with nothing written."""
+        if self.scene is None:
+            self.scene = self.load_scene()
+        if stage == "fit":  # checked here (before SfM), not when the first batch is drawn inside Lightning
+            train = self.train_views
+            pixels = len(train) * train.height * train.width
+            if self.rays_per_batch > pixels:
+                raise DataError(
+                    f"--data.init_args.rays_per_batch: {self.rays_per_batch} is more than the {pixels} training pixels "
+                    f"({len(train)} train views of {train.width}x{train.height}); use at most {pixels}"
+                )
+            images = train.images.detach().cpu().float().numpy()
+            if same := near_duplicates([thumbnail(image) for image in images], list(train.names)):
+                raise DataError(
+                    f"train images {describe_duplicates(same)} of {self.scene.source} are identical or nearly (mean "
+                    "difference under 2/255): a NeRF needs views from different positions; check the scene's images "
+                    "(a copied file?), or choose other train frames (--data.init_args.train_frames)"
+                )
         self.setup(stage)
 
     def setup(self, stage: str) -> None:
@@ -148,7 +166,7 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
         print(f"sparse depth: SfM on train views {self.scene.split.train} of {self.scene.source} "
               f"(cached in {self.sparse_depth_cache}) ...", flush=True)
         per_view = load_or_compute_sparse_depth(self.sparse_depth_cache, key, train.images, train.intrinsics,
-                                                train.c2w)
+                                                train.c2w, image_names=list(train.names))
         for i, sd in zip(self.scene.split.train, per_view, strict=True):
             print(f"  frame {i}: {len(sd)} points, median reprojection error "
                   f"{np.median(sd.reprojection_error):.2f} px", flush=True)

@@ -25,7 +25,7 @@ import torch
 from simplenerf.data.scene import Scene, SceneDataModule
 from simplenerf.errors import DataError, RunFolderError
 from simplenerf.evaluation.visibility import MIN_VIEWS, scene_visibility_masks
-from simplenerf.metrics.lpips import LPIPS
+from simplenerf.metrics.lpips import LPIPS, LPIPSWeightsNotFound
 from simplenerf.metrics.scores import MASKED_METRIC_NAMES, METRIC_NAMES, PSNR_CAP, frame_scores
 from simplenerf.model.nerf import FrameRender
 from simplenerf.viz.pictures import colorize_depth, write_mask_png, write_png
@@ -195,9 +195,17 @@ class Evaluator(L.Callback):
         """YAML of the config this test runs with, set by the CLI (`cli.RunConfig`); saved beside the results."""
 
     def check_inputs(self, stage: str) -> None:
-        """Loads LPIPS for `test`: missing weights stop the run before anything is rendered or written."""
+        """Loads LPIPS for `test`: missing weights stop the run before anything is rendered or written. `fit` checks
+        them too (found, or downloaded into the torch hub cache, then let go): the run's config names this callback,
+        and its `test` would otherwise stop at the missing weights only after the whole training."""
         if stage == "test" and self.use_lpips and self.lpips_net is None:
             self.lpips_net = LPIPS.from_weights(self.lpips_weights, allow_download=True)
+        elif stage == "fit" and self.use_lpips:
+            try:
+                LPIPS.from_weights(self.lpips_weights, allow_download=True)
+            except LPIPSWeightsNotFound as e:
+                raise LPIPSWeightsNotFound(f"the test of this run (--evaluation.lpips true) will need LPIPS weights, "
+                                           f"checked before training: {e}") from None
 
     def final_folder(self, trainer: L.Trainer, stage: str) -> Path:
         return Path(self.output_dir or os.path.join(trainer.default_root_dir, stage))

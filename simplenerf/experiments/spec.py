@@ -233,8 +233,10 @@ def load_sweep(path: str | Path, base: Path | None = None) -> Sweep:
         # jsonargparse renamed instantiate_classes to instantiate; either version works.
         sweep = (parser.instantiate if hasattr(parser, "instantiate") else parser.instantiate_classes)(cfg)
     except Exception as e:  # jsonargparse's ArgumentError: nested causes, the first line names the key
-        lines = [line.strip().lstrip("- ").strip() for line in str(e).splitlines() if line.strip()]
-        raise SweepError(f"{path}: {' '.join(lines[:2]) if lines else type(e).__name__}") from None
+        from simplenerf.run.console import parser_error_line  # the key, then its innermost cause
+
+        raise SweepError(f"{path}: {parser_error_line(str(e), parser)[0].removeprefix('--') or type(e).__name__}"
+                         ) from None
     sweep = _as_sweep(sweep)
     check_values(sweep, path)
     return sweep

@@ -103,7 +103,8 @@ def _resolve_trunk(path: str | os.PathLike[str] | None, allow_download: bool) ->
     if path is not None:
         explicit = Path(path).expanduser()
         if not explicit.is_file():
-            raise LPIPSWeightsNotFound(_missing_message(f"LPIPS weights file {explicit} does not exist."))
+            what = "is a folder, not a file" if explicit.is_dir() else "does not exist"
+            raise LPIPSWeightsNotFound(_missing_message(f"LPIPS weights file {explicit} {what}."))
         return _read_arrays(explicit)
     env_path = os.environ.get(WEIGHTS_ENV)
     if env_path:

@@ -9,6 +9,7 @@ The parts of a run declare their own pre-flight checks by a protocol (`ChecksMod
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import Protocol, runtime_checkable
@@ -17,7 +18,7 @@ import lightning as L
 import torch
 from lightning.pytorch.utilities import rank_zero_only
 
-from simplenerf.errors import CheckpointError, DataError, RunFolderError, unwritable
+from simplenerf.errors import CheckpointError, DataError, RunFolderError, SimpleNeRFError, absent, unwritable
 from simplenerf.method.module import SimpleNeRF
 
 
@@ -65,7 +66,7 @@ SPECIAL_CHECKPOINTS = ("best", "hpc")  # Lightning's own meanings of --ckpt_path
 def read_checkpoint(path: Path) -> dict:
     """The checkpoint at `path` loaded on the CPU; CheckpointError naming the file if it is missing or unreadable."""
     if not path.is_file():
-        raise CheckpointError(f"checkpoint {path} does not exist")
+        raise CheckpointError(f"checkpoint {path} {absent(path, folder=False)}")
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as e:  # a truncated zip, a pickle of something else, an empty file: all unreadable
@@ -201,6 +202,61 @@ def check_model_meets_data(model: SimpleNeRF, n_train: int | None, stage: str) -
             f"{n_train} train view is too few for this model: its {' and '.join(parts)} compare depth across train "
             "views and need at least 2 (use n_views >= 2, or a model without them, e.g. configs/dsnerf.yaml)"
         )
+
+
+# Trainer options Lightning applies only under automatic optimisation: SimpleNeRF optimises manually (one update per
+# step, `SimpleNeRF.training_step`), so they would change nothing (or stop inside Lightning): refused up front.
+MANUAL_OPTIMISATION_IGNORES = {"gradient_clip_val": None, "gradient_clip_algorithm": None, "accumulate_grad_batches": 1}
+
+
+def check_trainer_options(trainer: L.Trainer, model: L.LightningModule) -> None:
+    """SimpleNeRFError naming the first trainer option that the model's manual optimisation ignores, if set."""
+    if getattr(model, "automatic_optimization", True):
+        return
+    values = {"gradient_clip_val": trainer.gradient_clip_val,
+              "gradient_clip_algorithm": trainer.gradient_clip_algorithm,
+              "accumulate_grad_batches": trainer.accumulate_grad_batches}
+    for name, default in MANUAL_OPTIMISATION_IGNORES.items():
+        value = getattr(values[name], "value", values[name])  # the clipping algorithm is an enum
+        if value is not None and value != default:
+            raise SimpleNeRFError(
+                f"--trainer.{name} {value}: SimpleNeRF optimises manually (one update per step), which "
+                f"Lightning's {name} does not apply to; leave it unset (a larger --data.init_args.rays_per_batch with "
+                "--model.rays_per_backward accumulates gradients over a batch's parts)"
+            )
+
+
+def _described(config: dict | None, key: str, default: str) -> str:
+    """`--model.<key> (<class>)`, the option a refusal names, with the class the config gives it."""
+    node = (config or {}).get(key)
+    class_path = node.get("class_path") if isinstance(node, dict) else None
+    return f"--model.{key} ({class_path or default})"
+
+
+def check_optimisation(model: SimpleNeRF, config: dict | None = None) -> None:
+    """The parameter groups, optimiser and learning-rate schedule a fit builds (`SimpleNeRF.configure_optimizers`),
+    built once here on the model's parameters: a value torch refuses (a negative learning rate, betas outside
+    [0, 1), a decay rate <= 0, a group_lr naming no group) stops the fit before anything is written, with the option
+    and torch's reason, instead of a traceback inside Lightning. `config` is the model's parsed config (a dict), for
+    the class names."""
+    from simplenerf.method.optim import ExponentialDecay, default_optimizer, parameter_groups
+
+    for name, lr in model.group_lr.items():
+        if not (isinstance(lr, (int, float)) and math.isfinite(lr) and lr >= 0):
+            raise SimpleNeRFError(f"--model.group_lr: the learning rate of group {name!r} is {lr}; expected a number "
+                                  ">= 0")
+    try:
+        groups = parameter_groups(model, model.group_lr)
+    except ValueError as e:
+        raise SimpleNeRFError(f"--model.group_lr: {e}") from None
+    try:
+        optimizer = (model.optimizer or default_optimizer)(groups)
+    except (ValueError, TypeError) as e:
+        raise SimpleNeRFError(f"{_described(config, 'optimizer', 'torch.optim.Adam')}: {e}") from None
+    try:
+        model.lr_scheduler(optimizer) if model.lr_scheduler is not None else ExponentialDecay(optimizer)
+    except (ValueError, TypeError, ZeroDivisionError) as e:
+        raise SimpleNeRFError(f"{_described(config, 'lr_scheduler', 'ExponentialDecay')}: {e}") from None
 
 
 def kept_checkpoints(folder: Path) -> str:

@@ -24,12 +24,13 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from jsonargparse import lazy_instance
+from jsonargparse.typing import restricted_number_type
 from lightning.pytorch import LightningDataModule, Trainer
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
 from lightning.pytorch.utilities import rank_zero_only
 
 from simplenerf.data.scene import SceneDataModule
-from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged
+from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged, absent
 from simplenerf.evaluation.evaluator import Evaluator
 from simplenerf.method.module import SimpleNeRF
 from simplenerf.metrics.lpips import LPIPSWeightsNotFound
@@ -47,6 +48,8 @@ from simplenerf.run.callbacks import (
 from simplenerf.run.checks import (
     check_checkpoint_fits,
     check_model_meets_data,
+    check_optimisation,
+    check_trainer_options,
     check_writable,
     kept_checkpoints,
     preflight_inputs,
@@ -57,7 +60,7 @@ from simplenerf.run.checks import (
 )
 from simplenerf.run.config_files import FIT_ONLY_KEYS, SUBCOMMAND_KEYS, check_config_files, without_subcommand_keys
 from simplenerf.run.console import PROG, HeldLogs, parser_error_line
-from simplenerf.run.lock import command_line, lock_run_folder
+from simplenerf.run.lock import command_line, lock_run_folder, release_run_folder
 from simplenerf.run.loggers import WandbLogger
 from simplenerf.run.memory import reuse_freed_memory
 from simplenerf.run.resume import (
@@ -75,6 +78,9 @@ DESCRIPTION = (
     "scores every test frame into <run>/test, predict renders the test frames. Start from a config in configs/, "
     "e.g. `simplenerf fit --config configs/demo.yaml`; `simplenerf fit --help` lists every option."
 )
+
+
+Port = restricted_number_type("Port", int, [(">=", 0), ("<=", 65535)])  # a TCP port (0: any free one)
 
 
 class OneLineErrorParser(LightningArgumentParser):
@@ -116,6 +122,12 @@ class SimpleNeRFCLI(LightningCLI):
             raise
         self._held_logs.release()
 
+    def init_parser(self, **kwargs: Any) -> LightningArgumentParser:
+        """Every parser (the main one and each subcommand's) without option abbreviations: `--trainer.max_step 5`
+        is an unknown option (with the hint of the full name), not a silent `--trainer.max_steps`."""
+        kwargs.setdefault("allow_abbrev", False)
+        return super().init_parser(**kwargs)
+
     def parse_arguments(self, parser: LightningArgumentParser, args: Any) -> None:
         """As Lightning's, without its warning against giving `args` while sys.argv holds arguments: `make_cli`
         always passes the arguments itself (those of sys.argv, or a verb's or a test's)."""
@@ -146,7 +158,8 @@ class SimpleNeRFCLI(LightningCLI):
             )
             parser.add_argument("--viewer", type=bool, default=False,
                                 help="Open the web viewer of the run while it trains (docs/viewer.md).")
-            parser.add_argument("--viewer_port", type=int, default=8080, help="The viewer's port (0: any free one).")
+            parser.add_argument("--viewer_port", type=Port, default=8080,
+                                help="The viewer's port, 0-65535 (0: any free one).")
         if subcommand in ("fit", "test"):
             parser.add_argument(
                 "--allow_changes", type=list[str], default=[],
@@ -217,6 +230,7 @@ class SimpleNeRFCLI(LightningCLI):
         # Bad input (a missing scene, missing LPIPS weights, a checkpoint that does not fit) stops here, before
         # loggers or outputs create anything: the data module and every callback that declares pre-flight checks
         # (`simplenerf.run.checks`: ChecksModel, ChecksInputs, ChecksOutputs) run them.
+        check_trainer_options(self.trainer, self.model)
         data = self.datamodule if isinstance(self.datamodule, SceneDataModule) else None
         check_model_meets_data(self.model, data.n_views if data is not None else None, subcommand)
         try:
@@ -225,22 +239,33 @@ class SimpleNeRFCLI(LightningCLI):
             # The advice must be one that works: lpips_weights takes a path, lpips turns the metric off.
             raise SimpleNeRFError(re.sub(r"\(e\.g\. `--evaluation\.lpips_weights none`\)",
                                          "with `--evaluation.lpips false`", str(e))) from None
+        if subcommand == "fit":  # a value torch refuses (a negative lr) stops here, not inside Lightning
+            model_config = self.config[subcommand].get("model")
+            check_optimisation(self.model, model_config.as_dict() if hasattr(model_config, "as_dict") else None)
         if data is not None and subcommand == "fit":
             check_model_meets_data(self.model, len(data.train_views), subcommand)
             self.model.set_train_views(data.train_views)  # what the reliability masks reproject into
         config = self.config_init[subcommand]
         folder = self.checkpoint_folder()
-        given = config.get("ckpt_path")
-        config["ckpt_path"] = resolve_checkpoint(subcommand, given, folder, self.model)
-        self.check_settings(subcommand, config)
-        if subcommand == "fit" and given is None:
-            prepare_fresh_fit(folder, bool(config.get("overwrite", False)))
-        check_writable(self.output_folders(subcommand))
-        preflight_outputs(self.trainer.callbacks, self.trainer, subcommand)  # e.g. an earlier test/ kept in the way
-        if rank_zero_only.rank == 0:  # one writer per run folder (under DDP, rank 0 for all)
-            lock_run_folder(Path(self.trainer.default_root_dir), command_line())
+        # One writer per run folder (under DDP, rank 0 for all), locked before anything in it is read, moved or
+        # deleted: a second command into a busy folder stops here and changes nothing (docs/running.md).
+        run_folder = Path(self.trainer.default_root_dir)
+        if rank_zero_only.rank == 0:
+            lock_run_folder(run_folder, command_line())
+        try:
+            given = config.get("ckpt_path")
+            config["ckpt_path"] = resolve_checkpoint(subcommand, given, folder, self.model)
+            self.check_settings(subcommand, config)
+            if subcommand == "fit" and given is None:
+                prepare_fresh_fit(folder, bool(config.get("overwrite", False)))
+            check_writable(self.output_folders(subcommand))
+            preflight_outputs(self.trainer.callbacks, self.trainer, subcommand)  # e.g. an earlier test/ in the way
+        except BaseException:
+            release_run_folder(run_folder)  # a folder this command created is removed again
+            raise
         self._held_logs.release()
         hardware.announce(self.trainer.precision, self.trainer.strategy.root_device)  # once: rank 0 prints it
+        signals.at_step_end = subcommand == "fit"  # a test frame can take minutes: test stops at once
         scene = data.scene if data is not None else None
         self._render_instead = subcommand == "test" and scene is not None and not scene.split.test
 
@@ -344,6 +369,7 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
         parser_class=OneLineErrorParser,
         parser_kwargs={"prog": PROG, "description": DESCRIPTION},
         seed_everything_default=0,
+        auto_configure_optimizers=False,  # the optimiser is the model's (`model.optimizer`, `model.lr_scheduler`)
         run=run,
         args=without_subcommand_keys(given, drop),
     )
@@ -356,7 +382,7 @@ def load_for_tool(
     without a logger, its data module set up for `stage` and, with `ckpt`, the model's trained weights loaded (eval
     mode, on `device`)."""
     if ckpt is not None and not Path(ckpt).is_file():
-        raise DataError(f"checkpoint {ckpt} does not exist")
+        raise DataError(f"checkpoint {ckpt} {absent(ckpt, folder=False)}")
     cli = make_cli([*(a for c in configs for a in ("--config", c)), *overrides, "--trainer.logger", "false"], run=False)
     cli.datamodule.setup(stage)
     if ckpt is not None:

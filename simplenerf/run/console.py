@@ -23,7 +23,7 @@ PROG = "simplenerf"
 TYPE_WORDS = {
     "PositiveInt": "a positive integer", "NonNegativeInt": "an integer >= 0", "PositiveFloat": "a positive number",
     "NonNegativeFloat": "a number >= 0", "int": "an integer", "float": "a number", "bool": "true or false",
-    "str": "a string",
+    "str": "a string", "Port": "a port number 0-65535",
 }
 
 
@@ -42,6 +42,24 @@ def _cause(detail: str, given: str | None) -> str:
     return detail
 
 
+def _union_cause(lines: list[str], given: str | None) -> str | None:
+    """A value that matches none of a Union's types (e.g. `--trainer.precision fp8`) as `expected one of <the
+    choices>, got <value>`: every Literal's values and the other types in words; None if the message lists none."""
+    subtypes = next((line.removeprefix("Subtypes: ") for line in lines if line.startswith("Subtypes: ")), None)
+    if subtypes is None:
+        return None
+    choices: list[str] = []
+    for literal, kind in re.findall(r"Literal\[([^\]]*)\]|<class '([\w.]+)'>", subtypes):
+        if literal:
+            choices += [value.strip().strip("'\"") for value in literal.split(",")]
+        elif kind:
+            choices.append("null" if kind == "NoneType" else TYPE_WORDS.get(kind, kind))
+    if not choices:
+        return None
+    choices = list(dict.fromkeys(choices))
+    return f"expected one of {', '.join(choices)}; got {given if given is not None else 'another value'}"
+
+
 def _nested_key(lines: list[str], start: int) -> tuple[list[str], str | None, str | None]:
     """Below a `Problem with given class_path` line: the keys of the nested `Parser key "k":` lines, the innermost
     cause and the value given there."""
@@ -56,7 +74,8 @@ def _nested_key(lines: list[str], start: int) -> tuple[list[str], str | None, st
             continue
         if not keys:
             break
-        if line.startswith(("Does not validate against any of", "Subtypes:", "Errors:", "Given value type:")):
+        if line.startswith(("Does not validate against any of", "Subtypes:", "Errors:", "Given value type:",
+                            "Expected a path but")):
             continue
         cause = line
         break
@@ -82,7 +101,13 @@ def parser_error_line(message: str, parser: Any) -> tuple[str, str]:
         if match := re.match(r"Problem with given class_path '([^']+)':\s*(.*)$", line):
             class_path, cause = match.group(1), match.group(2) or (lines[i + 1] if i + 1 < len(lines) else "")
             nested, inner, given = _nested_key(lines, i + 1)
-            if nested and inner:  # a wrong value of one of the class's arguments
+            deeper = re.match(r"Problem with given class_path '([^']+)':\s*(.*)$", inner or "")
+            if nested and deeper:  # an argument's own class_path is wrong (a mistyped field class)
+                key = ".".join([key, "init_args", *nested]) if key else ".".join(nested)
+                at = lines.index(inner, i + 1)
+                class_path, cause = deeper.group(1), deeper.group(2) or (lines[at + 1] if at + 1 < len(lines) else "")
+                detail = f"class_path {class_path}: {cause}"
+            elif nested and inner:  # a wrong value of one of the class's arguments
                 key = ".".join([key, "init_args", *nested]) if key else ".".join(nested)
                 detail = f"{_cause(inner, given)} ({class_path})"
             else:
@@ -93,7 +118,14 @@ def parser_error_line(message: str, parser: Any) -> tuple[str, str]:
         if not detail and len(lines) > 1:
             detail = lines[1]
         given = next((line.removeprefix("Given value: ") for line in lines if line.startswith("Given value: ")), None)
-        detail = _cause(detail, given)
+        if detail.startswith("Expected a path but") and "Errors:" in lines:  # a class_path of the wrong kind
+            reasons = [line for line in lines[lines.index("Errors:") + 1:]
+                       if not line.startswith(("Expected a <class 'NoneType'>", "Given value"))]
+            detail = f"class_path {given}: {reasons[0]}" if reasons else detail
+        elif detail.startswith("Does not validate against any of the Union subtypes"):
+            detail = _union_cause(lines, given) or detail
+        else:
+            detail = _cause(detail, given)
     if detail.startswith("Problems parsing config") and len(lines) > 1:  # YAML: keep where and what
         detail = " ".join(lines).replace('in "<unicode string>", ', "")
     if match := re.match(r"unrecognized arguments: (.*)$", detail):

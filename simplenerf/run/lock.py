@@ -4,6 +4,11 @@ The kernel releases the lock when its holder exits in any way (an error, a signa
 by a killed process is recognised as stale and simply taken over; the file itself stays (removing it would race with
 a process that has just opened it) and holds the holder's pid, host, start time and command, for the error line of
 a second `fit` or `test` started into the same folder.
+
+The lock is taken before anything in the folder is read, moved or deleted (the checkpoint a command starts from, the
+checkpoints `fit --overwrite true` deletes, earlier test results): a second command into a busy folder changes
+nothing there. A command that created the folder itself and then stops on bad input removes it again
+(`release_run_folder`), so that a refused command leaves no run folder behind.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from simplenerf.errors import RunFolderError
 LOCK_NAME = ".simplenerf.lock"
 
 _held: dict[Path, int] = {}  # folder -> file descriptor, held until the process exits
+_created: dict[Path, tuple[Path | None, bool]] = {}  # folder -> (outermost folder this process created, lock file too)
 
 
 def holder_description(text: str) -> str:
@@ -37,32 +43,72 @@ def lock_run_folder(folder: Path, command: str) -> None:
     """Takes the lock of run folder `folder` (created if needed) for this process, until it exits.
 
     Raises:
-        RunFolderError: another live process holds it (the line names it: pid, host, command).
+        RunFolderError: another live process holds it (the line names it: pid, host, command), or the folder cannot
+            be created.
     """
     folder = Path(folder)
     key = folder.resolve()
     if key in _held:
         return
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / LOCK_NAME
+    outermost = next((p for p in reversed([folder, *folder.parents]) if not p.exists()), None)
     try:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        raise RunFolderError(f"cannot create the lock file {path}: {e.strerror or e}") from None
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        holder = holder_description(os.pread(fd, 65536, 0).decode(errors="replace"))
+        raise RunFolderError(f"cannot write to the run folder {folder}: {e.strerror or e}") from None
+    path = folder / LOCK_NAME
+    while True:
+        new_file = not path.exists()
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise RunFolderError(f"cannot write to the run folder {folder}: {e.strerror or e}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = holder_description(os.pread(fd, 65536, 0).decode(errors="replace"))
+            os.close(fd)
+            raise RunFolderError(
+                f"the run folder {folder} is in use by {holder}; wait for it to finish, or use another "
+                "--trainer.default_root_dir"
+            ) from None
+        try:  # the file locked must still be the one at `path` (a refused command may have just removed it)
+            if os.stat(path).st_ino == os.fstat(fd).st_ino:
+                break
+        except FileNotFoundError:
+            pass
         os.close(fd)
-        raise RunFolderError(
-            f"the run folder {folder} is in use by {holder}; wait for it to finish, or use another "
-            "--trainer.default_root_dir"
-        ) from None
     info = {"pid": os.getpid(), "host": socket.gethostname(),
             "started": datetime.now(timezone.utc).isoformat(timespec="seconds"), "command": command}
     os.ftruncate(fd, 0)
     os.pwrite(fd, (json.dumps(info) + "\n").encode(), 0)
     _held[key] = fd
+    _created[key] = (outermost, new_file)
+
+
+def release_run_folder(folder: Path) -> None:
+    """Gives up the lock of `folder` taken by `lock_run_folder`. The lock file and the folders this process created
+    are removed again, as far as they hold nothing else: a command refused after taking the lock leaves nothing."""
+    key = Path(folder).resolve()
+    fd = _held.pop(key, None)
+    if fd is None:
+        return
+    outermost, new_file = _created.pop(key, (None, False))
+    if new_file:
+        try:
+            (key / LOCK_NAME).unlink()
+        except OSError:
+            pass
+    os.close(fd)
+    if outermost is None:
+        return
+    outermost = outermost.resolve()
+    for path in (key, *key.parents):
+        try:
+            path.rmdir()
+        except OSError:  # not empty (another process's file) or gone: leave it
+            return
+        if path == outermost:
+            return
 
 
 def command_line() -> str:

@@ -7,9 +7,11 @@ for SIGTERM, the shell's convention that Lightning's own `sys.exit` on Ctrl-C do
 
 While Lightning runs a loop it has its own SIGTERM handler (`lightning.pytorch.trainer.connectors.signal_connector`),
 which calls ours after its own: the signal is then left to Lightning, which stops the loop at the end of the current
-batch (`trainer.received_sigterm` -> `SIGTERMException`); `fit` then writes last.ckpt (`run.callbacks.Checkpointing`)
-and `test` removes its partial results (`Evaluator.on_exception`). SIGINT is forwarded to that path as a SIGTERM to
-the process itself. A second signal stops at once. SIGUSR1, Lightning's SLURM requeue signal
+batch (`trainer.received_sigterm` -> `SIGTERMException`); `fit` then writes last.ckpt (`run.callbacks.Checkpointing`).
+SIGINT is forwarded to that path as a SIGTERM to the process itself. A second signal stops at once. `validate`,
+`test` and `predict` (`at_step_end` False) stop at once too: a batch of theirs is a whole frame, which can take a
+minute to render on a CPU (longer than a scheduler waits after SIGTERM), and there is nothing to save; `test` removes
+its partial results (`Evaluator.on_exception`). SIGUSR1, Lightning's SLURM requeue signal
 (`SLURMEnvironment(auto_requeue=True)`), is left to Lightning.
 """
 
@@ -33,6 +35,9 @@ class Interrupted(KeyboardInterrupt):
 received: int | None = None
 """The first signal this process received (None: none)."""
 _forwarded = False  # a SIGINT re-sent as SIGTERM to Lightning's handler, which will call ours once more
+at_step_end = True
+"""Whether a signal during a Lightning loop waits for the end of the batch (`fit`: a resumable checkpoint) rather
+than stopping at once; the CLI sets it per subcommand."""
 
 
 def exit_status(signum: int) -> int:
@@ -57,7 +62,7 @@ def _handler(signum: int, frame: FrameType | None) -> None:
     first = received is None
     if first:
         received = signum
-    if first and _lightning_handles_sigterm():
+    if first and at_step_end and _lightning_handles_sigterm():
         if signum != signal.SIGTERM:
             _forwarded = True
             os.kill(os.getpid(), signal.SIGTERM)
@@ -68,8 +73,8 @@ def _handler(signum: int, frame: FrameType | None) -> None:
 def install() -> None:
     """Handles SIGINT and SIGTERM as the module docstring says (in the main thread; elsewhere signals cannot be
     handled and nothing changes)."""
-    global received, _forwarded
-    received, _forwarded = None, False
+    global received, _forwarded, at_step_end
+    received, _forwarded, at_step_end = None, False, True
     for signum in SIGNALS:
         try:
             signal.signal(signum, _handler)

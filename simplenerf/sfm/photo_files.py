@@ -14,7 +14,7 @@ import numpy as np
 import pycolmap
 from PIL import Image, ImageOps, UnidentifiedImageError
 
-from simplenerf.errors import DataError, SfMError
+from simplenerf.errors import DataError, SfMError, absent
 from simplenerf.sfm.mapping import ADVICE
 
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
@@ -39,7 +39,7 @@ class Photo:
 def find_photos(images_dir: Path) -> list[Path]:
     """The photos in a folder (by suffix, sorted); DataError if the folder is missing or has fewer than 2."""
     if not images_dir.is_dir():
-        raise DataError(f"photo folder {images_dir} does not exist")
+        raise DataError(f"photo folder {images_dir} {absent(images_dir, folder=True)}")
     paths = sorted(p for p in images_dir.iterdir() if p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES)
     if len(paths) < 2:
         raise DataError(f"{images_dir} has {len(paths)} photos ({', '.join(PHOTO_SUFFIXES)}); at least 2 are needed. "

@@ -42,6 +42,7 @@ from tqdm import tqdm
 from simplenerf.errors import DataError, SfMError
 from simplenerf.geometry.alignment import CameraAlignment, align_cameras
 from simplenerf.geometry.poses import poses_to_opengl, to_poses_bounds
+from simplenerf.metrics.duplicates import describe_duplicates, near_duplicates, thumbnail
 from simplenerf.sfm.colmap import opengl_c2w_of_image
 from simplenerf.sfm.mapping import ADVICE, CAMERA_MODELS, SfMResult, run_sfm
 from simplenerf.sfm.photo_files import (
@@ -53,7 +54,14 @@ from simplenerf.sfm.photo_files import (
     undistort,
     undistortion,
 )
-from simplenerf.sfm.process_checks import MARKER, check_output_folder, check_writable_parent, judge, replace_output
+from simplenerf.sfm.process_checks import (
+    MARKER,
+    check_output_folder,
+    check_writable_parent,
+    folder_mode,
+    judge,
+    replace_output,
+)
 from simplenerf.sfm.top_view import top_view_picture
 
 BOUND_PERCENTILES = (0.1, 99.9)  # LLFF's pose_utils.save_poses: np.percentile(zs, .1), np.percentile(zs, 99.9)
@@ -132,6 +140,7 @@ def process_photos(
         raise DataError(f"camera model {camera_model!r} is not one of {', '.join(CAMERA_MODELS)}")
     try:
         partial = Path(tempfile.mkdtemp(prefix=f".{output_dir.name}.partial-", dir=output_dir.parent))
+        partial.chmod(folder_mode())  # mkdtemp's 0700 would become the scene folder's: others could not read it
     except OSError as e:
         raise DataError(f"cannot write the output {output_dir}: {e.strerror or e}") from None
     try:
@@ -141,8 +150,10 @@ def process_photos(
         report["problems"] = judge(report)
         (partial / "sfm_report.json").write_text(json.dumps(report, indent=2) + "\n")
         entries = sorted(p.name for p in partial.iterdir())
+        files = sorted(p.relative_to(partial).as_posix() for p in partial.rglob("*") if p.is_file())
         (partial / MARKER).write_text(json.dumps({"written_by": "simplenerf process-data",
-                                                  "entries": [*entries, MARKER]}, indent=2) + "\n")
+                                                  "entries": [*entries, MARKER], "files": [*files, MARKER]},
+                                                 indent=2) + "\n")
         replace_output(partial, output_dir)
     except OSError as e:
         shutil.rmtree(partial, ignore_errors=True)
@@ -185,14 +196,19 @@ def _process(
         sizes.append((width, height) if transposed else (height, width))
     height, width = downscaled_size(*common_size(sizes), max_size)
     names = [f"{p.stem}.png" for p in paths]
-    resized, focal_priors = [], []
+    resized, focal_priors, thumbnails = [], [], []
     for path, name, size in tqdm(list(zip(paths, names, sizes, strict=True)), desc="reading photos", unit="photo"):
         photo = read_photo(path)
         image, factor = fit_to_size(photo.image, height, width)
+        thumbnails.append(thumbnail(image))
         if size != (height, width):
             resized.append({"photo": path.name, "size": list(size), "scale": round(factor, 6)})
         focal_priors.append(None if photo.focal is None else photo.focal * factor)
         _write_image(work / "photos" / name, image)
+    if same := near_duplicates(thumbnails, [p.name for p in paths]):
+        raise SfMError(f"photos {describe_duplicates(same)} in {paths[0].parent} are identical or nearly (mean "
+                       "difference under 2/255): structure from motion needs photos from different positions; remove "
+                       "the copies")
     with_prior = [f for f in focal_priors if f is not None]
     log(f"photos: {len(paths)} from {paths[0].parent}, used at {width}x{height}"
         + (f" ({len(resized)} cropped/resized to that size)" if resized else "")

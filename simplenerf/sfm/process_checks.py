@@ -80,27 +80,67 @@ def check_writable_parent(output_dir: Path) -> None:
         raise DataError(f"cannot write the output {output_dir}: {output_dir.parent}: {reason}")
 
 
+def folder_mode() -> int:
+    """The mode a new folder gets under this process's umask (e.g. 0755 under umask 022)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o777 & ~mask
+
+
+def _safe(name: str) -> bool:
+    """A relative path inside the output (no absolute path, no `..`)."""
+    parts = Path(name).parts
+    return bool(parts) and not Path(name).is_absolute() and ".." not in parts
+
+
+def earlier_files(output_dir: Path) -> list[str]:
+    """The files (relative paths) an earlier process-data wrote into `output_dir`, from its marker: its `files`; a
+    marker written before they were listed names top-level `entries`, of which a folder counts with the PNG images in
+    it (all process-data writes there), so a user's other files in it stay."""
+    try:
+        marker = json.loads((output_dir / MARKER).read_text())
+    except (OSError, ValueError):
+        return []
+    if not isinstance(marker, dict):
+        return []
+    if isinstance(marker.get("files"), list):
+        return [str(name) for name in marker["files"] if _safe(str(name))]
+    files = []
+    for name in (str(n) for n in marker.get("entries", []) if _safe(str(n))):
+        path = output_dir / name
+        if path.is_dir():
+            files += [p.relative_to(output_dir).as_posix() for p in path.glob("*.png") if p.is_file()]
+        else:
+            files.append(name)
+    return files
+
+
 def replace_output(partial: Path, output_dir: Path) -> None:
-    """Moves the entries of `partial` into `output_dir`; in an existing output only the entries an earlier
-    process-data listed in its marker are replaced (moved aside first, deleted at the end), other files stay."""
+    """Moves the files of `partial` into `output_dir`. In an existing output exactly the files an earlier
+    process-data listed in its marker are replaced or removed (moved aside first, deleted at the end), and the
+    folders they leave empty; every other file stays, also one a user put into `images/`."""
     if not output_dir.exists():
         os.replace(partial, output_dir)
         return
-    earlier = []
-    if (output_dir / MARKER).is_file():
-        try:
-            earlier = [str(name) for name in json.loads((output_dir / MARKER).read_text()).get("entries", [])]
-        except (OSError, ValueError, AttributeError):
-            earlier = []
+    new = sorted(p.relative_to(partial).as_posix() for p in partial.rglob("*") if p.is_file())
     old = Path(tempfile.mkdtemp(prefix=f".{output_dir.name}.old-", dir=output_dir.parent))
     try:
-        for name in {*earlier, *(p.name for p in partial.iterdir())}:
-            if "/" in name or name in ("", ".", ".."):
-                continue
-            if (output_dir / name).exists():
-                os.replace(output_dir / name, old / name)
-        for entry in partial.iterdir():
-            os.replace(entry, output_dir / entry.name)
-        partial.rmdir()
+        moved_aside = []
+        for name in sorted({*earlier_files(output_dir), *new}):
+            path = output_dir / name
+            if path.is_file() or path.is_symlink():
+                (old / name).parent.mkdir(parents=True, exist_ok=True)
+                os.replace(path, old / name)
+                moved_aside.append(name)
+        for name in new:
+            (output_dir / name).parent.mkdir(parents=True, exist_ok=True)
+            os.replace(partial / name, output_dir / name)
+        folders = {parent for name in moved_aside for parent in Path(name).parents if parent != Path(".")}
+        for folder in sorted(folders, key=lambda f: len(f.parts), reverse=True):  # deepest first
+            try:
+                (output_dir / folder).rmdir()
+            except OSError:  # not empty: a new file or one of the user's
+                pass
+        shutil.rmtree(partial, ignore_errors=True)
     finally:
         shutil.rmtree(old, ignore_errors=True)

@@ -29,6 +29,7 @@ import inspect
 import json
 import logging
 import os
+import re
 import sys
 import tempfile
 import time
@@ -61,6 +62,7 @@ def compute_sparse_depth(
     seed: int = 0,
     num_threads: int = -1,
     progress: bool = False,
+    image_names: Sequence[str] | None = None,
 ) -> list[SparseDepth]:
     """Triangulates SIFT matches between the views with the given poses held fixed; returns each view's depths.
 
@@ -78,6 +80,8 @@ def compute_sparse_depth(
         seed: seed of COLMAP's RANSAC, for reproducible results.
         num_threads: CPU threads for COLMAP (-1: all cores).
         progress: log the stages (logger `simplenerf.sfm.sparse_depth`) and let COLMAP print its own log.
+        image_names: the images' own file names (e.g. the scene's), which error messages name instead of the
+            temporary copies COLMAP reads (0000.png, ...).
 
     Returns:
         One `SparseDepth` per view, in input order, sorted by 3D point id.
@@ -93,6 +97,18 @@ def compute_sparse_depth(
     if min_track_length < 2:
         raise SfMError(f"min_track_length must be >= 2 (a point needs two views), got {min_track_length}")
 
+    try:
+        return _compute(images_u8, intrinsics_np, c2w_np, percentile, min_track_length, max_num_features,
+                        guided_matching, min_tri_angle, max_reprojection_error, seed, num_threads, progress)
+    except SfMError as e:
+        if image_names is None:
+            raise
+        own = {f"{index:04d}.png": str(name) for index, name in enumerate(image_names)}
+        raise SfMError(re.sub(r"\b\d{4}\.png\b", lambda m: own.get(m.group(0), m.group(0)), str(e))) from None
+
+
+def _compute(images_u8, intrinsics_np, c2w_np, percentile, min_track_length, max_num_features, guided_matching,
+             min_tri_angle, max_reprojection_error, seed, num_threads, progress) -> list[SparseDepth]:
     with tempfile.TemporaryDirectory(prefix="simplenerf-sfm-") as work, colmap_log_level(verbose=progress):
         work_dir = Path(work)
         start = time.perf_counter()
@@ -187,7 +203,8 @@ def load_or_compute_sparse_depth(
     bound.apply_defaults()
     # Threads and logging do not change the result, so they must not change the cache identity either.
     result_options = {
-        k: v for k, v in bound.arguments.items() if k not in ("images", "intrinsics", "c2w", "num_threads", "progress")
+        k: v for k, v in bound.arguments.items()
+        if k not in ("images", "intrinsics", "c2w", "num_threads", "progress", "image_names")
     }
     result_options = json.loads(json.dumps(result_options))  # tuples -> lists, as they come back from disk
     images_u8 = _as_uint8_images(images)

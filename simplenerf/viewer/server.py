@@ -48,18 +48,23 @@ LEGEND = ("**mask** (nearest train view): <span style='color:#1ad933'>green</spa
 
 
 class PortInUse(SimpleNeRFError):
-    """The viewer's port is taken."""
+    """The viewer's port is taken, is no port number, or its host is not this machine's."""
 
 
 def check_port(host: str, port: int) -> None:
     """PortInUse unless a server can listen on host:port (port 0: any free port, always fine). viser would quietly
     move to the next free port, and the printed URL would then not be the one asked for."""
+    if not 0 <= port <= 65535:
+        raise PortInUse(f"port {port} is not a port number: expected 0-65535 (0: any free one)")
     if port == 0:
         return
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
         probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server will: only a listener blocks
         try:
             probe.bind((host, port))
+        except socket.gaierror as e:
+            raise PortInUse(f"cannot listen on host {host}: {e.strerror}; give an address of this machine with "
+                            "--host (127.0.0.1, 0.0.0.0: every interface)") from None
         except OSError as e:
             raise PortInUse(f"port {port} on {host} is in use ({e.strerror}): choose another with --port N, or "
                             f"--port 0 for any free one") from None

@@ -128,6 +128,9 @@ def test_bad_input_stops_before_anything_runs(tmp_path):
                           r"scenes\[1\]: scene folder .*nowhere does not exist"),
         "unknown key": ([good], models(configs), {"budget": {"max_step": 3}},
                         r"sweep\.yaml: .*budget.* does not accept option 'max_step'"),
+        "unknown key in an entry": ([good], [{**models(configs)[0], "extra": 1}], {},
+                                    r"sweep\.yaml: models: class_path simplenerf\.experiments\.spec\.ModelEntry: "
+                                    r"Option 'extra' is not accepted$"),
         "model does not parse": ([good], [{"name": "Broken", "configs": [str(configs["simplenerf"]), str(broken)]}],
                                  {}, r"models\[0\] \(Broken\) on scenes\[0\] \(scene0\): .*no_such_option"),
     }

@@ -9,10 +9,14 @@ import json
 import os
 import shutil
 import signal
+import stat
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 import torch
 
@@ -106,10 +110,31 @@ def test_sigterm_and_sigint_stop_fit_with_a_checkpoint_and_a_busy_folder_is_refu
     # | Ctrl-C during a resumed fit | the same, exit status 130; the lock of the killed process is no obstacle |
     fit = start(tmp_path, "fit", *args, "--ckpt_path", "last")
     wait_for(fit, f"step {step + 2}/")
+    # | `fit --overwrite true` and `test` into the running fit's folder | refused before anything there is touched |
+    saved = {p.name: p.read_bytes() for p in last.parent.iterdir()}
+    for verb, extra in (("fit", ["--overwrite", "true"]), ("test", ["--ckpt_path", "last"])):
+        busy = run(verb, *args, *extra, check=False)
+        assert busy.returncode == 2
+        [line] = busy.stderr.strip().splitlines()
+        assert line.startswith(f"{ERROR}the run folder {tmp_path / 'run'} is in use by pid {fit.pid} on ")
+    assert {p.name: p.read_bytes() for p in last.parent.iterdir()} == saved
     fit.send_signal(signal.SIGINT)
     status, stderr = finish(fit)
     assert status == 130 and last_step(last) >= step + 2
     assert stderr.strip().splitlines()[-1].startswith(f"{ERROR}fit stopped by SIGINT at step {last_step(last)}; ")
+
+
+def test_importing_pycolmap_keeps_the_python_sigterm_handler():
+    """COLMAP's glog installs a SIGTERM handler at import that prints a native stack dump (`simplenerf sweep` imports
+    pycolmap after its handlers are set): `simplenerf.sfm` sets the Python handler again."""
+    code = ("import os, signal, sys\n"
+            "def stop(signum, frame):\n    sys.exit(3)\n"
+            "signal.signal(signal.SIGTERM, stop)\n"
+            "import simplenerf.sfm.colmap\n"
+            "os.kill(os.getpid(), signal.SIGTERM)\n"
+            "import time; time.sleep(10)\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 3 and "SIGTERM" not in proc.stderr, proc.stderr[-2000:]
 
 
 def test_a_lock_left_by_a_killed_process_is_taken_over(tmp_path):
@@ -130,17 +155,19 @@ def test_a_lock_left_by_a_killed_process_is_taken_over(tmp_path):
 
 
 def test_a_stopped_test_leaves_no_partial_results(resumed, tmp_path):
-    """SIGTERM after the first of 3 test frames: exit status 143, earlier results kept, no test.partial."""
+    """SIGTERM after the first of 3 test frames, while the test works on (120 s, as a frame on a slow CPU): it stops
+    within seconds, exit status 143, earlier results kept, no test.partial."""
     run_dir = resumed / "run"
     earlier = run_dir / "test"
     earlier.mkdir(exist_ok=True)
     (earlier / "summary.json").write_text("earlier results")
-    slow = ["--trainer.callbacks+=tests.custom_callbacks.SlowTest", "--trainer.callbacks.seconds", "5"]
+    slow = ["--trainer.callbacks+=tests.custom_callbacks.SlowTest", "--trainer.callbacks.seconds", "120"]
     test = start(tmp_path, "test", *run_args(resumed), "--ckpt_path", "last", "--evaluation.lpips", "false", *slow)
     wait_for(test, "frame 0 done")
+    sent = time.monotonic()
     test.send_signal(signal.SIGTERM)
     status, stderr = finish(test)
-    assert status == 143
+    assert status == 143 and time.monotonic() - sent < 30
     assert stderr.strip().splitlines()[-1] == (
         f"{ERROR}test stopped by SIGTERM before it finished: no results were written (earlier results are kept)")
     assert (earlier / "summary.json").read_text() == "earlier results"
@@ -199,6 +226,18 @@ def test_a_resume_or_test_with_other_settings_stops_unless_allowed(resumed):
     assert f"seed0_96x128_20 -> {resumed / 'data' / 'seed1_96x128_20'}; " in line
 
 
+def test_a_copied_runs_config_tests_the_copy(resumed, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(resumed / "run" / "checkpoints", copy / "checkpoints")
+    shutil.copyfile(resumed / "run" / "config.yaml", copy / "config.yaml")
+    before = sorted(p.name for p in (resumed / "run").iterdir())
+    proc = run("test", "--config", str(copy / "config.yaml"), "--ckpt_path", "last", "--evaluation.lpips", "false")
+    assert (f"simplenerf: {copy / 'config.yaml'} is the config of a run trained in {resumed / 'run'}; using the run "
+            f"where the file is, {copy}") in proc.stderr.splitlines()
+    assert json.loads((copy / "test" / "summary.json").read_text())["checkpoint"].startswith(str(copy))
+    assert sorted(p.name for p in (resumed / "run").iterdir()) == before  # the original is not touched
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # Numbers and parser errors
 
@@ -215,6 +254,122 @@ def test_counts_must_be_positive(option, value, expected, tmp_path):
     assert proc.stderr.strip().splitlines()[0] == (
         f"{ERROR}{option}: {expected} (simplenerf.data.synthetic.SyntheticDataModule)")
     assert not (tmp_path / "run").exists()
+
+
+# Values that would fail inside Lightning or torch: one line naming the option, the value and what is allowed; no run
+# folder. (The demo's scene, 3 train views of 128x96 = 36864 pixels, without sparse depth: no SfM.)
+@pytest.mark.parametrize(("args", "expected"), [
+    (["--data.init_args.rays_per_batch", "40000"], "--data.init_args.rays_per_batch: 40000 is more than the 36864 "
+     "training pixels (3 train views of 128x96); use at most 36864"),
+    (["--model.optimizer.init_args.lr", "-0.001"], "--model.optimizer (torch.optim.Adam): Invalid learning rate: "
+     "-0.001"),
+    (["--model.optimizer.init_args.betas", "[0.9, 1.5]"], "--model.optimizer (torch.optim.Adam): Invalid beta "
+     "parameter at index 1: 1.5"),
+    (["--model.lr_scheduler.init_args.decay_rate", "0"], "--model.lr_scheduler "
+     "(simplenerf.method.optim.ExponentialDecay): decay_rate and decay_steps must be positive, got 0.0, 500"),
+    (["--model.group_lr", "{other: -1}"], "--model.group_lr: the learning rate of group 'other' is -1.0; expected a "
+     "number >= 0"),
+    (["--model.group_lr", "{grid: 0.1}"], "--model.group_lr: group_lr names ['grid'], but the parameter groups are "
+     "['mlp']"),
+    (["--trainer.precision", "fp8"], "--trainer.precision: expected one of 64, 32, 16, transformer-engine, "
+     "transformer-engine-float16, 16-true, 16-mixed, bf16-true, bf16-mixed, 32-true, 64-true, bf16, null; got fp8"),
+    (["--viewer", "true", "--viewer_port", "99999"], "--viewer_port: expected a port number 0-65535, got 99999"),
+    # Options manual optimisation does not honour, and abbreviations, which are not taken as the full name.
+    (["--trainer.gradient_clip_val", "0.5"], "--trainer.gradient_clip_val 0.5: SimpleNeRF optimises manually (one "
+     "update per step), which Lightning's gradient_clip_val does not apply to; leave it unset (a larger "
+     "--data.init_args.rays_per_batch with --model.rays_per_backward accumulates gradients over a batch's parts)"),
+    (["--trainer.accumulate_grad_batches", "2"], "--trainer.accumulate_grad_batches 2: SimpleNeRF optimises manually"
+     " (one update per step), which Lightning's accumulate_grad_batches does not apply to; leave it unset (a larger "
+     "--data.init_args.rays_per_batch with --model.rays_per_backward accumulates gradients over a batch's parts)"),
+    (["--optimizer", "torch.optim.SGD"], "unrecognized arguments: --optimizer torch.optim.SGD"),
+    (["--trainer.max_step", "5"], "unrecognized arguments: --trainer.max_step 5"),
+    # Lines that end with their cause: the class, the kind of path.
+    (["--model.nerf.init_args.coarse.class_path", "simplenerf.model.fields.Nope"], "--model.nerf.init_args.coarse: "
+     "class_path simplenerf.model.fields.Nope: module 'simplenerf.model.fields' has no attribute 'Nope'"),
+    (["--data", "torch.nn.Linear"], "--data: class_path torch.nn.Linear: Import path does not correspond to a "
+     "subclass of LightningDataModule"),
+    (["--data", "simplenerf.data.llff.LLFFDataModule", "--data.init_args.scene_dir", "{tmp}/tiny_model.yaml"],
+     "scene directory {tmp}/tiny_model.yaml is a file, not a folder"),
+    (["--ckpt_path", "{tmp}"], "checkpoint {tmp} is a folder, not a file"),
+])
+def test_values_that_would_fail_inside_lightning_stop_at_the_command_line(args, expected, tmp_path):
+    args = [arg.replace("{tmp}", str(tmp_path)) for arg in args]
+    proc = run("fit", *run_args(tmp_path), "--data.init_args.sparse_rays_per_batch", "0", *args, check=False)
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert proc.stderr.strip().splitlines()[0] == f"{ERROR}{expected.replace('{tmp}', str(tmp_path))}"
+    assert "Traceback" not in proc.stderr and not (tmp_path / "run").exists()
+
+
+def test_a_key_given_twice_in_a_config_is_one_line_naming_both(tmp_path):
+    config = tmp_path / "twice.yaml"
+    config.write_text("trainer:\n  max_steps: 3\n  val_check_interval: 2\n  max_steps: 4\n")
+    proc = run("fit", "--config", "configs/demo.yaml", "--config", str(config), "--trainer.default_root_dir",
+               str(tmp_path / "run"), check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        f"{ERROR}config file {config}: key 'max_steps' is given twice in one mapping, at line 2 and line 4 (the later "
+        "would silently win); keep one"]
+    assert not (tmp_path / "run").exists()
+    # The optimiser is the model's: Lightning's own --optimizer / --lr_scheduler are not offered.
+    help_text = run("fit", "--help").stdout
+    assert "--model.optimizer" in help_text and "\n  --optimizer" not in help_text
+    assert "\n  --lr_scheduler" not in help_text
+
+
+def test_a_scene_folder_given_to_view_is_called_a_scene(synthetic_scene):
+    proc = run("view", str(synthetic_scene), check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        f"{ERROR}{synthetic_scene} is a scene folder (poses_bounds.npy, images), not a run: view shows a trained run; "
+        f"train one on it first (`simplenerf fit --config ... --data.init_args.scene_dir {synthetic_scene}`), then "
+        "view its run folder"]
+
+
+def llff_fit(scene: Path, tmp: Path, *extra: str) -> subprocess.CompletedProcess:
+    """fit of the DS-NeRF config on the LLFF-layout `scene` at factor 1, train frames 0, 5, 10, run folder tmp/run."""
+    return run("fit", "--config", "configs/dsnerf.yaml", "--data.init_args.scene_dir", str(scene),
+               "--data.init_args.factor", "1", "--data.init_args.train_frames", "[0, 5, 10]",
+               "--trainer.default_root_dir", str(tmp / "run"), "--trainer.logger", "false",
+               "--data.init_args.sparse_depth_cache", str(tmp / "cache"), *extra, check=False)
+
+
+def test_identical_train_images_and_sfm_failures_name_the_scenes_files(synthetic_scene, tmp_path):
+    scene = Path(shutil.copytree(synthetic_scene, tmp_path / "scene"))
+    # | a train image copied over another, sparse depth off | named before training |
+    shutil.copyfile(scene / "images" / "000.png", scene / "images" / "005.png")
+    proc = llff_fit(scene, tmp_path, "--data.init_args.sparse_rays_per_batch", "0")
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        f"{ERROR}train images 000 and 005 of {scene} are identical or nearly (mean difference under 2/255): a "
+        "NeRF needs views from different positions; check the scene's images (a copied file?), or choose other train "
+        "frames (--data.init_args.train_frames)"]
+    # | a blank train image, SfM for sparse depth | the scene's file is named, not COLMAP's temporary copy |
+    shutil.copyfile(synthetic_scene / "images" / "005.png", scene / "images" / "005.png")
+    blank = np.full((48, 64, 3), 128, np.uint8)
+    assert cv2.imwrite(str(scene / "images" / "010.png"), blank)
+    proc = llff_fit(scene, tmp_path)
+    assert proc.returncode == 2
+    line = proc.stderr.strip().splitlines()[-1]
+    assert line.startswith(f"{ERROR}image 2 (010) has no SIFT features: textureless "), line
+    assert "0002.png" not in proc.stderr and not (tmp_path / "run").exists()
+
+
+def test_fit_checks_the_lpips_weights_of_its_test_before_training(tmp_path):
+    env = {"SIMPLENERF_LPIPS_WEIGHTS": str(tmp_path / "missing.npz"), "TORCH_HOME": str(tmp_path / "hub")}
+    proc = run("fit", *run_args(tmp_path), "--data.init_args.sparse_rays_per_batch", "0", env=env, check=False)
+    assert proc.returncode == 2
+    [line] = proc.stderr.strip().splitlines()
+    assert line.startswith(f"{ERROR}the test of this run (--evaluation.lpips true) will need LPIPS weights, checked "
+                           f"before training: SIMPLENERF_LPIPS_WEIGHTS={tmp_path / 'missing.npz'} does not name an "
+                           "existing file.")
+    assert "`--evaluation.lpips false`" in line and not (tmp_path / "run").exists()
+
+
+def test_a_port_out_of_range_is_one_line(tmp_path):
+    proc = run("view", str(tmp_path), "--port", "99999", check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[0] == (
+        f"{ERROR}argument --port: expected a port number 0-65535 (0: any free one), got 99999")
 
 
 def test_parser_errors_keep_their_cause(tmp_path):
@@ -326,12 +481,32 @@ def test_process_data_overwrite_replaces_only_its_own_files_and_ctrl_c_writes_no
     assert set(marker["entries"]) == {"images", "images_2", "poses_bounds.npy", "sfm_report.json", "sfm_top_view.png",
                                       MARKER}
     assert json.loads((out / "sfm_report.json").read_text())["problems"] == []  # the synthetic cameras are sane
+    assert "images/000.png" in marker["files"] and "images_2/000.png" in marker["files"]
+    # | folders | with the user's umask (readable by others under umask 022), not mkdtemp's 0700 |
+    mask = os.umask(0)
+    os.umask(mask)
+    for folder in (out, out / "images", out / "images_2"):
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o777 & ~mask, folder
+    # | --overwrite onto its own output | exactly the files it wrote are replaced; the user's files stay |
     (out / "notes.txt").write_text("mine")
+    (out / "images" / "mine.txt").write_text("mine too")
     run("process-data", "--images", str(photos), "--output", str(out), "--factors", "4", "--overwrite")
     assert sorted(p.name for p in out.iterdir()) == sorted(
         [MARKER, "images", "images_4", "notes.txt", "poses_bounds.npy", "sfm_report.json", "sfm_top_view.png"])
-    assert (out / "notes.txt").read_text() == "mine"
+    assert (out / "notes.txt").read_text() == "mine" and (out / "images" / "mine.txt").read_text() == "mine too"
+    assert sorted(p.name for p in (out / "images").iterdir()) == [*(f"{i:03d}.png" for i in range(6)), "mine.txt"]
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_process_data_names_identical_photos_before_sfm(photos, tmp_path):
+    copy = Path(shutil.copytree(photos, tmp_path / "photos"))
+    shutil.copyfile(copy / "000.png", copy / "006.png")
+    proc = run("process-data", "--images", str(copy), "--output", str(tmp_path / "scene"), check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1] == (
+        f"{ERROR}photos 000.png and 006.png in {copy} are identical or nearly (mean difference under 2/255): structure "
+        "from motion needs photos from different positions; remove the copies")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["photos"]
 
 
 def test_process_data_judges_an_implausible_camera():

@@ -87,6 +87,12 @@ def test_test_without_a_checkpoint_refuses(shared, tmp_path):
     assert proc.returncode == 2
     assert error_lines(proc) == [f"{ERROR}test needs trained weights: add --ckpt_path last (the run's {last}) or "
                                  "--ckpt_path FILE"]
+    # Refused once it holds the lock of a run folder it created: the folder (and its parents) are removed again.
+    fresh = tmp_path / "new" / "run"
+    proc = run("test", *run_args(tmp_path, shared), "--ckpt_path", "last", "--evaluation.lpips", "false",
+               "--trainer.default_root_dir", str(fresh), check=False)
+    assert proc.returncode == 2 and error_lines(proc)[0].startswith(f"{ERROR}no checkpoint to test: ")
+    assert not (tmp_path / "new").exists()
 
 
 # | test/fit with a missing, truncated or incompatible checkpoint | one line naming the file; config.yaml untouched |

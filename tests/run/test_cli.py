@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import re
@@ -338,6 +339,33 @@ def test_user_augmentation_plugs_in_by_class_path(tmp_path):
     run("fit", *run_args(tmp_path), "--config", str(override), "--trainer.max_steps", "2")
     state = torch.load(tmp_path / "run/checkpoints/last.ckpt", map_location="cpu", weights_only=False)["state_dict"]
     assert state["augmentations.0.field.trunk.0.weight"].shape == (16, 15)  # gamma(p, 0, 2): 15 inputs
+
+
+def test_user_loss_term_plugs_in_by_class_path(tmp_path):
+    """A term defined outside the package (tests/custom_term.py) joins the objective from YAML: it is computed and
+    logged by its name, and the warm-up schedule sets its weight by that name like a built-in term's."""
+    override = tmp_path / "user_term.yaml"
+    override.write_text(
+        "model:\n"
+        "  objective:\n"
+        "    terms:\n"
+        "      - class_path: tests.custom_term.OpacityTerm\n"
+        "        init_args: {weight: 0.5, render: coarse}\n"
+        "trainer:\n"
+        "  log_every_n_steps: 1\n"
+        "  logger:\n"
+        "    class_path: lightning.pytorch.loggers.CSVLogger\n"
+        f"    init_args: {{save_dir: {tmp_path / 'csv'}, name: run, version: 0}}\n"
+        "  callbacks:\n"
+        "    - class_path: simplenerf.run.callbacks.LossWeightSchedule\n"
+        "      init_args: {schedules: {opacity: [[0, 0.0], [1, 0.25]]}}\n"
+    )
+    run("fit", *run_args(tmp_path), "--config", str(override), "--trainer.max_steps", "2")
+    with open(tmp_path / "csv/run/version_0/metrics.csv") as f:
+        rows = [row for row in csv.DictReader(f) if row["train_params/opacity"]]
+    assert [(int(r["step"]), float(r["train_params/opacity"])) for r in rows] == [(0, 0.0), (1, 0.25)]
+    assert rows[0]["train/loss_opacity"] == ""  # weight 0: not computed
+    assert 0.0 <= float(rows[1]["train/loss_opacity"]) <= 1.0  # mean (1 - accumulation)^2 of the coarse render
 
 
 def test_unreadable_image_stops_before_anything_is_written(synthetic_scene, tmp_path):

@@ -5,9 +5,10 @@ Fixed weights (seed 0), fixed rays of a small three-view scene with smooth image
 e_tau and the masks take all three values), fixed random draws (seed 1); and the same step on the scene with stronger
 texture, whose patch errors lie on both sides of e_tau (so that a changed threshold changes its masks). Pinned: every
 loss term, the fractions of +1 / -1 / 0 rays of each reliability mask, and gradient norms of each model. A change
-to a loss weight's use (e.g. sparse depth on main coarse), a mask rule (a strict < made <=, the validity border, the nearest view), the one-way
-supervision or the coarse-fine sparse-ray term changes these numbers (`python -m benchmarks.equivalence.mutations`
-applies such changes one at a time and runs the fast tests; docs/testing.md).
+to a loss weight's use (e.g. sparse depth on main coarse), a mask rule (a strict < made <=, the validity border, the
+nearest view), the one-way supervision or the coarse-fine sparse-ray term changes these numbers
+(`python -m benchmarks.equivalence.mutations` applies such changes one at a time and runs the fast tests;
+docs/testing.md).
 
 Recorded with `python tests/method/test_pinned_step.py` (prints the values), at the commit that added
 benchmarks/release_equivalence.py, whose check of the same code path against the release passes.

@@ -69,6 +69,16 @@ def test_paper_config_keeps_paper_settings():
     assert cfg.data.init_args.factor == 4 and cfg.data.init_args.rays_per_batch == 2048
 
 
+@pytest.mark.parametrize("name", ["llff.yaml", "realestate.yaml"])
+def test_paper_configs_warm_up_as_the_paper(name):
+    """L_ap, L_av and L_cfc are 0 before iteration 10000, then 0.1 (paper Sec. 4.4; the release)."""
+    cfg = parse(Path(__file__).resolve().parents[1] / "configs" / name)
+    [schedule] = [c for c in cfg.trainer.callbacks if c.class_path.endswith("LossWeightSchedule")]
+    expected = [[0, 0.0], [10000, 0.1]]
+    assert {k: [list(p) for p in v] for k, v in schedule.init_args.schedules.items()} == {
+        "points": expected, "views": expected, "cfc": expected}
+
+
 def test_unknown_key_is_rejected(capsys):
     with pytest.raises(SystemExit) as exit_info:
         parse(CONFIGS[0], "--model.no_such_option", "1")

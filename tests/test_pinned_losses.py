@@ -121,11 +121,24 @@ PINNED = {
 }
 
 
+# Relative tolerance per step: float32 rounding across CPU kernels, never a change of what a step computes.
+# Step 0 computes from the same weights on every machine; only the order of float32 reductions differs between CPU
+# kernels (AVX-512 or AVX2, MKL's and oneDNN's code paths) and thread counts, a few float32 eps (1.2e-7) of a mean.
+# From step 1 on, the differences grow: Adam divides each gradient by its own running scale, so the rounding of a
+# near-zero gradient becomes a learning-rate-sized difference of a weight, and a ray whose patch error rounds to the
+# other side of e_tau flips a ternary mask. Measured against these pins (recorded on another machine) on a 2-core
+# AVX-512 CPU (2026-12) with its own kernels and with AVX2 forced (ATEN_CPU_CAPABILITY=avx2, MKL_ENABLE_INSTRUCTIONS,
+# DNNL_MAX_CPU_ISA), 1 and 2 threads: at most 4.2e-7 at step 0, 6.3e-6 at steps 1-2, 3.0e-4 at step 9 and 5.0e-4 at
+# step 19. The tolerances are 2-4 times those; a change of the method moves step 0 or 1 by far more
+# (benchmarks/equivalence/mutations.py; docs/testing.md).
+REL = {0: 1e-6, 1: 2e-5, 2: 2e-5, 9: 1e-3, 19: 2e-3}
+
+
 def test_demo_losses_are_unchanged(tmp_path):
     rows = demo_losses(tmp_path)
     for step, expected in PINNED.items():
         for term, value in expected.items():
-            assert rows[step][term] == pytest.approx(value, rel=1e-6), (step, term)
+            assert rows[step][term] == pytest.approx(value, rel=REL[step]), (step, term)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Seconds per training step and peak memory of a config on this machine: times N training iterations after W
+r"""Seconds per training step and peak memory of a config on this machine: times N training iterations after W
 warm-up iterations and prints ONE JSON line (benchmarks.speed), e.g.
 
     simplenerf benchmark --config configs/llff.yaml --steps 3 --warmup 2 --rays 256 --precision 32-true \

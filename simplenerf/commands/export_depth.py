@@ -1,4 +1,4 @@
-"""A dense NeRF's depth of every frame of its scene: the reference depth of the masked scores and of the depth
+r"""A dense NeRF's depth of every frame of its scene: the reference depth of the masked scores and of the depth
 metrics (simplenerf.evaluation.reference_depth), e.g.
 
     simplenerf export-depth --config configs/dense/llff.yaml --ckpt runs/dense/llff/checkpoints/last.ckpt \

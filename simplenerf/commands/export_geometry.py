@@ -1,4 +1,4 @@
-"""The geometry a trained run learned: each view's depth map and a coloured point cloud (simplenerf.viz.export), e.g.
+r"""The geometry a trained run learned: each view's depth map and a coloured point cloud (simplenerf.viz.export), e.g.
 
     simplenerf export-geometry --config configs/llff.yaml --ckpt runs/llff/checkpoints/last.ckpt \
         --out runs/llff/geometry -- --data.init_args.scene_dir data/my_scene

@@ -1,4 +1,4 @@
-"""A trained run's depth error at held-out SfM points: the depth score of a real scene without reference depth
+r"""A trained run's depth error at held-out SfM points: the depth score of a real scene without reference depth
 (simplenerf.evaluation.heldout_depth), e.g.
 
     simplenerf heldout-depth --config configs/dsnerf.yaml --ckpt runs/dsnerf/checkpoints/last.ckpt \

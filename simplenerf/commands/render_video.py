@@ -1,4 +1,4 @@
-"""Video of a trained run along the scene's camera path: [RGB | depth] side by side (simplenerf.viz.video), e.g.
+r"""Video of a trained run along the scene's camera path: [RGB | depth] side by side (simplenerf.viz.video), e.g.
 
     simplenerf render-video --config configs/llff.yaml --ckpt runs/llff/checkpoints/last.ckpt \
         -- --data.init_args.scene_dir data/nerf_llff_data/fern

@@ -1,4 +1,4 @@
-"""Scores a tested run again from its saved outputs with the current definitions, without rendering
+r"""Scores a tested run again from its saved outputs with the current definitions, without rendering
 (simplenerf.evaluation.rescore), e.g.
 
     simplenerf rescore runs/demo

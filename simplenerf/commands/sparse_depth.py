@@ -1,4 +1,4 @@
-"""Computes and caches the sparse (SfM) depth of a config's train views, so that `fit` starts at once (DS-NeRF's
+r"""Computes and caches the sparse (SfM) depth of a config's train views, so that `fit` starts at once (DS-NeRF's
 sparse depth, simplenerf.sfm.sparse_depth), e.g.
 
     simplenerf sparse-depth --config configs/dsnerf.yaml \

@@ -1,4 +1,4 @@
-"""Visibility masks of a scene's test frames: the pixels the masked scores evaluate, those seen by at least
+r"""Visibility masks of a scene's test frames: the pixels the masked scores evaluate, those seen by at least
 `--min-views` train views (paper Sec. 5.1 and the supplement; simplenerf.evaluation.visibility), e.g.
 
     simplenerf visibility-masks --config configs/llff.yaml \

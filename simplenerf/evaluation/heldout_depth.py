@@ -49,13 +49,10 @@ def heldout_depth_error(
     for frame, sd in observations.items():
         uv = torch.from_numpy(sd.pixels).to(scene.views.c2w.dtype)
         rays = scene.views.rays(torch.full((len(sd),), frame), uv, near).to(device)
-        depths: dict[str, list[torch.Tensor]] = {}
-        for start in range(0, len(rays), chunk):
-            renders = model.render(rays[start : start + chunk], randomized=False)
-            for name, out in {"fine": renders.main.fine, "coarse": renders.main.coarse, **renders.augmented}.items():
-                depths.setdefault(name, []).append(out.depth)
-        for name, parts in depths.items():
-            depth = torch.cat(parts).cpu().double().numpy()
+        render = model.nerf.render_rays_chunked(rays, chunk, model.augmentations)
+        depths = {"fine": render.depth, "coarse": render.coarse_depth, **render.augmented_depth}
+        for name, depth in depths.items():
+            depth = depth.cpu().double().numpy()
             errors.setdefault(name, []).append(np.abs(depth - sd.depth) / sd.depth)
     stats = {}
     for name, parts in errors.items():

@@ -249,14 +249,17 @@ class SimpleNeRF(L.LightningModule):
         h, w = views.height, views.width
         uv = pixel_grid(h, w, self.device)
         index = torch.full((h * w,), view, device=self.device)
+        all_rays = views.rays(index, uv, self.nerf.near)
+        render = self.nerf.render_rays_chunked(all_rays, chunk, self.augmentations)
         maps: dict[str, list[torch.Tensor]] = {}
-        for start in range(0, h * w, chunk):
-            part_view, part_uv = index[start : start + chunk], uv[start : start + chunk]
-            rays = RayBatch(views.rays(part_view, part_uv, self.nerf.near), views.images[part_view, part_uv[:, 1],
-                            part_uv[:, 0]], part_view, part_uv)  # fmt: skip
-            renders, errors = self.render(rays.rays, randomized=False), ReprojectionErrors(views, rays)
+        for start in range(0, h * w, chunk):  # the masks in chunks too: patch errors are [rays, k * k, ...]
+            part = slice(start, start + chunk)
+            part_view, part_uv = index[part], uv[part]
+            rays = RayBatch(all_rays[part], views.images[part_view, part_uv[:, 1], part_uv[:, 0]], part_view, part_uv)
+            errors = ReprojectionErrors(views, rays)
             for term in (t for t in self.terms.values() if isinstance(t, MaskedDepthTerm)):
-                m = term.mask.judge(errors, term.main, renders[term.main].depth, term.other, renders[term.other].depth)
+                m = term.mask.judge(errors, term.main, render.depth_of(term.main)[part], term.other,
+                                    render.depth_of(term.other)[part])
                 if m is not None:
                     maps.setdefault(term.name, []).append(m)
         return {name: torch.cat(parts).reshape(h, w) for name, parts in maps.items()}

@@ -8,10 +8,15 @@ computed (during the warm-up the masked terms cost nothing, not even their masks
 
 A ray term's value is a mean over the rays it reads, so a batch may be rendered in parts (`method.module.SimpleNeRF`):
 the parts' values, each weighted by its share of the batch's rays of that kind, sum to the whole batch's value.
+
+Every term, the paper's and a user's, is a `Term` (one contract: `value`). A user's term is named by `class_path` in
+`model.objective.terms` and summed after the built-in ones (docs/architecture.md "Extending";
+`tests/custom_term.py` is an example).
 """
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
@@ -73,6 +78,8 @@ class Objective:
             on its own); 0 (the paper): off. Not in the paper; K-Planes and Mip-NeRF 360 use it against the fog
             that every depth loss of the paper allows, since they compare the mean depth only (docs/results.md
             "Where the blur and the streaks come from").
+        terms: further terms (`Term` subclasses by `class_path`, e.g. a user's own), summed after the built-in ones;
+            each is logged and scheduled by its `name` like them.
     """
 
     color_weight: float = 1.0
@@ -86,6 +93,7 @@ class Objective:
     fine_concentration_weight: float = 0.0
     concentration_bins: int = 5
     distortion_weight: float = 0.0
+    terms: list[Term] = field(default_factory=list)
 
 
 @dataclass
@@ -126,15 +134,26 @@ class TermValue:
     masks: dict[str, torch.Tensor] = field(default_factory=dict)
 
 
-class Term:
-    """One weighted term of the total loss (a ray term implements `value`, a regulariser `once`)."""
+class Term(ABC):
+    """One weighted term of the total loss: `weight * value`.
+
+    The contract is `value`. A term that reads rays ("random": the batch's random rays, with their colours and patch
+    reprojection errors; "sparse": its sparse-depth rays) is given each part's rendered rays of a kind it reads and
+    returns a mean over them. A term that reads none (a regulariser) is evaluated once per step, given None.
+
+    Args:
+        name: logged as `train/loss_<name>`; a `run.callbacks.LossWeightSchedule` schedules the weight by it. Unique.
+        weight: the term's weight (0: not computed).
+        reads: the kinds of rays the term reads: a tuple of "random" / "sparse"; empty: once per step.
+    """
 
     def __init__(self, name: str, weight: float, reads: tuple[RayKind, ...]) -> None:
-        self.name, self.weight, self.reads = name, weight, reads
+        self.name, self.weight, self.reads = name, weight, tuple(reads)
 
-    def value(self, rendered: RenderedRays) -> TermValue:
-        """The term's value on rays of a kind it reads (a mean over them)."""
-        raise NotImplementedError
+    @abstractmethod
+    def value(self, rendered: RenderedRays | None) -> TermValue:
+        """The term's value [] on `rendered` (rays of a kind it reads; a mean over them), or, for a term that reads
+        no rays, None: its value for the step."""
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(name={self.name!r}, weight={self.weight}, reads={self.reads})"
@@ -220,15 +239,15 @@ class RegularizerTerm(Term):
         super().__init__(name, weight, ())
         self.field, self.regularizer = field, regularizer
 
-    def once(self) -> torch.Tensor:
-        return self.field.regularization(self.regularizer)
+    def value(self, rendered: RenderedRays | None = None) -> TermValue:
+        return TermValue(self.field.regularization(self.regularizer))
 
 
 def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[str, Field]) -> dict[str, Term]:
     """The terms by name, in the order they are summed: colour, sparse depth, one masked depth term per augmentation
     (named after it), Simple-RF's mass concentration of those that have one ("<name>_concentration"), the distortion
-    of the main renders ("coarse_distortion", "fine_distortion"), L_cfc ("cfc"),
-    then each field's regularisers ("<regulariser>_<field>", e.g. "tv_fine").
+    of the main renders ("coarse_distortion", "fine_distortion"), L_cfc ("cfc"), then each field's regularisers
+    ("<regulariser>_<field>", e.g. "tv_fine"), then `objective.terms`.
 
     Args:
         augmentations: `method.augmentations.Augmentation`s. fields: the fields by name ("coarse", "fine" and the
@@ -248,6 +267,7 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
                                      on_sparse_rays=objective.coarse_fine_on_sparse_rays, **cfc_depth))
     for place, f in fields.items():
         terms += [RegularizerTerm(f"{name}_{place}", weight, f, name) for name, weight in f.regularizers().items()]
+    terms += objective.terms
     names = [t.name for t in terms]
     if len(set(names)) != len(names):
         raise ValueError(f"loss term names must be unique, got {names}")
@@ -281,8 +301,8 @@ def part_loss(terms: Mapping[str, Term], parts: Sequence[RenderedRays], regulari
         kind_losses.append(loss)
     total = sum(kind_losses)
     if regularize:
-        for term in (t for t in active if isinstance(t, RegularizerTerm)):
-            value = term.once()
+        for term in (t for t in active if not t.reads):
+            value = term.value(None).value
             total = total + term.weight * value
             values[term.name] = value.detach()
     return PartLoss(total, values, masks)

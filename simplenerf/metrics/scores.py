@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -60,6 +61,12 @@ def _work_dtype(x: torch.Tensor) -> torch.dtype:
 def quantize_8bit(x: torch.Tensor) -> torch.Tensor:
     """round(clip(x, 0, 1) * 255), as a float tensor of integer values in [0, 255]."""
     return torch.round(x.to(_work_dtype(x)).clamp(0.0, 1.0) * _DATA_RANGE)
+
+
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    """Values in [0, 1] (clipped) to 8 bits, same shape: round(clip(x, 0, 1) * 255), the levels `quantize_8bit`
+    scores. Every 8-bit picture of the package (PNGs, videos, the viewer, point colours, SfM's images) is made here."""
+    return np.round(np.clip(image, 0.0, 1.0) * 255).astype(np.uint8)
 
 
 def _check_images(pred: torch.Tensor, target: torch.Tensor) -> None:

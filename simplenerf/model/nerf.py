@@ -7,7 +7,9 @@ their cached encodings.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
 
 import torch
 from jsonargparse.typing import NonNegativeInt, PositiveInt
@@ -38,17 +40,34 @@ class NeRFOutputs:
 @dataclass
 class FrameRender:
     """A deterministic render of many rays (e.g. a full frame, then [H, W, ...]): the fine field's colour [..., 3],
-    depth [...] and accumulation [...], and the coarse field's depth [...]."""
+    depth [...] and accumulation [...], the coarse field's depth [...] and, where asked for, augmentations' depths
+    [...] by name (evaluated at the main model's samples, as in training)."""
 
     rgb: torch.Tensor
     depth: torch.Tensor
     accumulation: torch.Tensor
     coarse_depth: torch.Tensor
+    augmented_depth: dict[str, torch.Tensor] = field(default_factory=dict)
+
+    def depth_of(self, name: str) -> torch.Tensor:
+        """A depth by render name: "fine", "coarse" or an augmentation's."""
+        main = {"fine": self.depth, "coarse": self.coarse_depth}
+        return main[name] if name in main else self.augmented_depth[name]
 
     def reshape(self, height: int, width: int) -> FrameRender:
         """The render of H * W rays as an H x W frame."""
         return FrameRender(self.rgb.reshape(height, width, 3), *(x.reshape(height, width) for x in
-                           (self.depth, self.accumulation, self.coarse_depth)))  # fmt: skip
+                           (self.depth, self.accumulation, self.coarse_depth)),  # fmt: skip
+                           {name: d.reshape(height, width) for name, d in self.augmented_depth.items()})
+
+
+class RendersAlong(Protocol):
+    """What `NeRF.render_rays_chunked` asks of an augmentation (`method.augmentations.Augmentation`): its name and
+    its render at the main model's samples."""
+
+    name: str
+
+    def render(self, nerf: NeRF, main: NeRFOutputs, randomized: bool) -> RenderOutputs: ...
 
 
 class NeRF(nn.Module):
@@ -132,15 +151,35 @@ class NeRF(nn.Module):
         return NeRFOutputs(coarse=coarse, fine=fine, coarse_samples=coarse_samples, fine_samples=fine_samples)
 
     @torch.no_grad()
-    def render_rays_chunked(self, rays: RayBundle, chunk: int) -> FrameRender:
-        """Deterministic rendering of many rays (a full frame) in chunks, so memory is bounded at any resolution.
+    def render_rays_chunked(
+        self,
+        rays: RayBundle,
+        chunk: int,
+        augmentations: Sequence[RendersAlong] = (),
+        before_chunk: Callable[[], None] | None = None,
+    ) -> FrameRender:
+        """Deterministic rendering of many rays (a full frame) in chunks, so memory is bounded at any resolution: the
+        one full-frame renderer (validation, test, predict, videos, exports, held-out depth, reliability maps, the
+        viewer).
+
+        Args:
+            augmentations: augmentations whose depths to render too, at the main model's samples.
+            before_chunk: called before each chunk; it may raise to abandon the render (the viewer's cancel).
 
         Returns:
-            rgb [R, 3], depth [R], accumulation [R] of the fine field, and coarse_depth [R].
+            rgb [R, 3], depth [R], accumulation [R] of the fine field, coarse_depth [R] and augmented_depth {name: [R]}.
         """
-        parts = [self(rays[start : start + chunk], randomized=False) for start in range(0, len(rays), chunk)]
+        parts, augmented = [], {aug.name: [] for aug in augmentations}
+        for start in range(0, len(rays), chunk):
+            if before_chunk is not None:
+                before_chunk()
+            main = self(rays[start : start + chunk], randomized=False)
+            parts.append(main)
+            for aug in augmentations:
+                augmented[aug.name].append(aug.render(self, main, False).depth)
         return FrameRender(torch.cat([p.fine.rgb for p in parts]), torch.cat([p.fine.depth for p in parts]),
-                           torch.cat([p.fine.accumulation for p in parts]), torch.cat([p.coarse.depth for p in parts]))
+                           torch.cat([p.fine.accumulation for p in parts]), torch.cat([p.coarse.depth for p in parts]),
+                           {name: torch.cat(depths) for name, depths in augmented.items()})
 
 
 def mlp_nerf(num_coarse: int = 64, num_fine: int = 128, density_noise_std: float = 1.0, near: float = 1.0,

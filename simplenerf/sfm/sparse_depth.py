@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from simplenerf.errors import SfMError
+from simplenerf.metrics.scores import to_uint8
 from simplenerf.sfm.colmap import CameraSetup, colmap_log_level, colmap_pinhole_params, extract_and_match, log
 from simplenerf.sfm.known_poses import ADVICE, SparseDepth, collect, triangulate, verified_pairs, write_images
 
@@ -281,7 +282,7 @@ def _as_uint8_images(images: Sequence[ArrayLike] | ArrayLike) -> list[np.ndarray
         elif np.issubdtype(array.dtype, np.floating):
             if not (np.isfinite(array).all() and array.min() >= 0.0 and array.max() <= 1.0):
                 raise SfMError(f"image {index} is floating point but not in [0, 1]; pass uint8 or [0, 1]")
-            out.append(np.rint(array * 255.0).astype(np.uint8))
+            out.append(to_uint8(array))
         else:
             raise SfMError(f"image {index} has dtype {array.dtype}, expected uint8 or float in [0, 1]")
     if len(out) < 2:

@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 
 from simplenerf.geometry.poses import to_poses_bounds
+from simplenerf.metrics.scores import to_uint8
 from simplenerf.synthetic.objects import _objects
 from simplenerf.synthetic.scene import (
     FORMAT_VERSION,
@@ -209,10 +210,6 @@ def _subdir(kind: str, factor: int) -> str:
     return kind if factor == 1 else f"{kind}_{factor}"
 
 
-def _to_uint8(rgb: np.ndarray) -> np.ndarray:
-    return np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
-
-
 def _key(meta: dict[str, object]) -> tuple[object, ...]:
     # Scenes written before there were kinds are "planes" scenes.
     kind = meta.get("kind", "planes")
@@ -238,7 +235,7 @@ def _write_scene(scene: SyntheticScene, out: Path, factors: Sequence[int]) -> No
             if k in factors:
                 rgb, depth = render_view(scene, scene.c2w[i], h, w, f)
                 path = out / _subdir("images", k) / f"{i:03d}.png"
-                if not cv2.imwrite(str(path), cv2.cvtColor(_to_uint8(rgb), cv2.COLOR_RGB2BGR)):
+                if not cv2.imwrite(str(path), cv2.cvtColor(to_uint8(rgb), cv2.COLOR_RGB2BGR)):
                     raise OSError(f"cv2 failed to write {path}")
                 np.save(out / _subdir("depths", k) / f"{i:03d}.npy", depth.astype(np.float32))
             else:

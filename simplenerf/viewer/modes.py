@@ -11,8 +11,8 @@
   pixels that view does not see.
 
 Depths are coloured by `viz.pictures.colorize_depth` over one fixed range (the scene's near/far bounds), so a colour is
-the same depth in every render and every mode. Only the module's public parts are used: `nerf.render_rays_chunked`,
-`nerf(...)` with `Augmentation.render`, and `reliability_maps`.
+the same depth in every render and every mode. Only the module's public parts are used: `nerf.render_rays_chunked`
+(with an augmentation for its depth) and `reliability_maps`.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import torch
 from simplenerf.geometry.rays import RayBundle
 from simplenerf.geometry.views import Views
 from simplenerf.method.module import SimpleNeRF
+from simplenerf.model.nerf import FrameRender
 from simplenerf.viz.pictures import colorize_depth, grey_picture, to_uint8
 
 ModeKind = Literal["rgb", "depth", "accumulation", "coarse_fine", "augmented_depth", "mask"]
@@ -105,33 +106,17 @@ def sample_mask(mask: torch.Tensor, views: Views, view: int, points: torch.Tenso
     return values, seen
 
 
-@torch.no_grad()
-def render_chunks(model, rays: RayBundle, mode: RenderMode, stop: Callable[[], bool]) -> dict[str, torch.Tensor]:
-    """The quantities `mode` needs along `rays` (all valid), chunk by chunk (`model.hparams.chunk` rays), checking
-    `stop` between chunks (raises `RenderCancelled`).
+def render_rays(model, rays: RayBundle, mode: RenderMode, stop: Callable[[], bool]) -> FrameRender:
+    """What `mode` needs along `rays` (all valid): the main model's render and, for an augmented-depth mode, that
+    augmentation's depth, in chunks of `model.hparams.chunk` rays, checking `stop` before each chunk (raises
+    `RenderCancelled`)."""
 
-    Returns:
-        rgb [R, 3], depth [R], accumulation [R], coarse_depth [R] of the main model; with an augmented-depth mode also
-        augmented_depth [R].
-    """
-    chunk = int(model.hparams.chunk)
-    parts: dict[str, list[torch.Tensor]] = {}
-    for start in range(0, len(rays), chunk):
+    def before_chunk() -> None:
         if stop():
             raise RenderCancelled
-        part = rays[start : start + chunk]
-        if mode.kind == "augmented_depth":  # one pass of the main NeRF, whose samples the augmentation reuses
-            aug = next(a for a in model.augmentations if a.name == mode.name)
-            main = model.nerf(part, randomized=False)
-            out = {"rgb": main.fine.rgb, "depth": main.fine.depth, "accumulation": main.fine.accumulation,
-                   "coarse_depth": main.coarse.depth, "augmented_depth": aug.render(model.nerf, main, False).depth}
-        else:
-            frame = model.nerf.render_rays_chunked(part, chunk)
-            out = {"rgb": frame.rgb, "depth": frame.depth, "accumulation": frame.accumulation,
-                   "coarse_depth": frame.coarse_depth}
-        for key, value in out.items():
-            parts.setdefault(key, []).append(value)
-    return {key: torch.cat(values) for key, values in parts.items()}
+
+    augmentations = [a for a in model.augmentations if a.name == mode.name] if mode.kind == "augmented_depth" else []
+    return model.nerf.render_rays_chunked(rays, int(model.hparams.chunk), augmentations, before_chunk)
 
 
 def render_picture(
@@ -161,27 +146,29 @@ def render_picture(
     index = valid.nonzero()[:, 0]
     if len(index) == 0:  # the camera looks away from the scene
         return Picture(rgb=np.zeros((height, width, 3), np.uint8), depth=np.zeros((height, width), np.float32))
-    out = render_chunks(model, rays[index], mode, stop)
-    full = {}
-    for key, value in out.items():
+    out = render_rays(model, rays[index], mode, stop)
+
+    def full(value: torch.Tensor) -> np.ndarray:
+        """Values of the valid rays on the whole picture [H, W, ...] (0 elsewhere)."""
         canvas = value.new_zeros((n, *value.shape[1:]))
         canvas[index] = value
-        full[key] = canvas.reshape(height, width, *value.shape[1:]).float().cpu().numpy()
-    depth = full["depth"]
+        return canvas.reshape(height, width, *value.shape[1:]).float().cpu().numpy()
+
+    depth = full(out.depth)
     if mode.kind == "rgb":
-        picture = to_uint8(full["rgb"])
+        picture = to_uint8(full(out.rgb))
     elif mode.kind == "depth":
         picture = depth_picture(depth, depth_range)
     elif mode.kind == "accumulation":
-        picture = grey_picture(full["accumulation"])
+        picture = grey_picture(full(out.accumulation))
     elif mode.kind == "coarse_fine":
         picture = depth_picture(depth, depth_range)
-        picture[:, : width // 2] = depth_picture(full["coarse_depth"], depth_range)[:, : width // 2]
+        picture[:, : width // 2] = depth_picture(full(out.coarse_depth), depth_range)[:, : width // 2]
     elif mode.kind == "augmented_depth":
-        picture = depth_picture(full["augmented_depth"], depth_range)
+        picture = depth_picture(full(out.augmented_depth[mode.name]), depth_range)
     else:
-        values, seen = mask_at_pixels(rays, out["depth"], index, mask)
-        picture = mask_overlay(full["rgb"], values.reshape(height, width).cpu().numpy(),
+        values, seen = mask_at_pixels(rays, out.depth, index, mask)
+        picture = mask_overlay(full(out.rgb), values.reshape(height, width).cpu().numpy(),
                                seen.reshape(height, width).cpu().numpy())
     if mode.kind != "rgb":
         picture[~valid.reshape(height, width).cpu().numpy()] = 0

@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from simplenerf.geometry.rays import pixel_grid, pixel_rays
 from simplenerf.geometry.views import Views
-from simplenerf.viz.pictures import colorize_depth, write_png
+from simplenerf.viz.pictures import colorize_depth, to_uint8, write_png
 from simplenerf.viz.video import frame_rays
 
 PLY_VERTEX = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
@@ -179,7 +179,7 @@ def export_geometry(
         keep &= opaque & near_enough
         points.append(lift_pixels(rendered.depth, keep, views.intrinsics[i], views.c2w[i]))
         photo = views.images[i].detach().cpu().float().numpy()
-        colours.append(np.round(np.clip(photo[keep], 0.0, 1.0) * 255).astype(np.uint8))
+        colours.append(to_uint8(photo[keep]))
         per_view.append({
             "name": name,
             "points": int(keep.sum()),

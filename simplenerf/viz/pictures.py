@@ -1,4 +1,5 @@
-"""Pictures: colour maps, 8-bit conversion, PNG writing and publishing to loggers. A leaf module (numpy, cv2).
+"""Pictures: colour maps, 8-bit conversion (`to_uint8`, from `metrics.scores`), PNG writing and publishing to
+loggers. Built on numpy and cv2.
 
 Pictures are 8-bit RGB numpy arrays [H, W, 3], what both W&B and `write_png` take.
 """
@@ -12,10 +13,7 @@ import lightning as L
 import numpy as np
 import torch
 
-
-def to_uint8(image: np.ndarray) -> np.ndarray:
-    """Values in [0, 1] (clipped) to 8 bits, same shape."""
-    return np.round(np.clip(image, 0.0, 1.0) * 255).astype(np.uint8)
+from simplenerf.metrics.scores import to_uint8  # the one 8-bit rule (also the metrics' quantisation); re-exported
 
 
 def grey_picture(values: np.ndarray) -> np.ndarray:

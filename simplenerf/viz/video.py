@@ -25,7 +25,7 @@ from simplenerf.geometry.rays import RayBundle, make_rays, pixel_grid
 from simplenerf.geometry.trajectories import TrajectoryKind
 from simplenerf.model.nerf import NeRF
 from simplenerf.viz.camera_path import CameraPath
-from simplenerf.viz.pictures import colorize_depth
+from simplenerf.viz.pictures import colorize_depth, to_uint8
 
 
 def frame_rays(c2w: torch.Tensor, intrinsics: torch.Tensor, height: int, width: int, near: float) -> RayBundle:
@@ -60,7 +60,7 @@ def compose_frame(rgb: np.ndarray, depth: np.ndarray, depth_range: tuple[float, 
     `depth_range` (closest, farthest). An odd height gets its last row repeated: the encoder needs even sizes and
     would otherwise silently crop."""
     closest, farthest = depth_range
-    picture = np.round(np.clip(rgb, 0.0, 1.0) * 255).astype(np.uint8)
+    picture = to_uint8(rgb)
     frame = np.concatenate([picture, colorize_depth(depth, lo=1.0 / farthest, hi=1.0 / closest)], axis=1)
     return np.pad(frame, ((0, frame.shape[0] % 2), (0, 0), (0, 0)), mode="edge")
 

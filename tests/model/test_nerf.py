@@ -1,5 +1,6 @@
 import math
 
+import pytest
 import torch
 
 from simplenerf.geometry.rays import RayBundle, make_rays
@@ -96,3 +97,35 @@ def test_render_with_a_near_cut_is_empty_in_front_of_it():
     torch.testing.assert_close(whole.weights, torch.tensor([[0.5, 0.25, 0.125, 0.0625]]))
     torch.testing.assert_close(cut.weights, torch.tensor([[0.0, 0.0, 0.5, 0.25]]))  # alphas 0, 0, 1/2, 1/2
     torch.testing.assert_close(cut.depth, torch.tensor([(0.5 * 1.5 + 0.25 * 2.0) / (0.75 + 1e-6)]))
+
+
+def test_the_chunked_renderer_renders_augmented_depths_and_can_be_abandoned():
+    """The one full-frame renderer: an augmentation's depth at the main samples, as `aug.render` gives it on the whole
+    batch; `before_chunk` runs before each chunk, and what it raises abandons the render."""
+    from simplenerf.method.augmentations import Augmentation
+    from simplenerf.model.fields import RadianceField
+
+    nerf = small_nerf().eval()
+    aug = Augmentation("views", RadianceField(view_dependent=False, num_layers=2, width=16, skip_layer=None), None)
+    r = rays(64)
+    calls = []
+    chunked = nerf.render_rays_chunked(r, chunk=10, augmentations=[aug], before_chunk=lambda: calls.append(1))
+    assert len(calls) == 7 and set(chunked.augmented_depth) == {"views"}
+    with torch.no_grad():
+        expected = aug.render(nerf, nerf(r, randomized=False), False).depth
+    assert torch.allclose(chunked.augmented_depth["views"], expected, atol=1e-5)
+    assert torch.equal(chunked.depth_of("views"), chunked.augmented_depth["views"])
+    assert torch.equal(chunked.depth_of("coarse"), chunked.coarse_depth)
+    assert chunked.reshape(8, 8).augmented_depth["views"].shape == (8, 8)
+
+    class Stop(Exception):
+        pass
+
+    def stop_at_third() -> None:
+        calls.append(1)
+        if len(calls) == 10:
+            raise Stop
+
+    with pytest.raises(Stop):
+        nerf.render_rays_chunked(r, chunk=10, before_chunk=stop_at_third)
+    assert len(calls) == 10  # 7 of the first render, then the third chunk of this one

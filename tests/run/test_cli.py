@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import csv
 import json
 import os
 import re
@@ -14,7 +16,7 @@ import pytest
 import torch
 import yaml
 
-from simplenerf.commands import LIGHTNING_VERBS, VERBS, main
+from simplenerf.commands import LIGHTNING_VERBS, TASKS, VERBS, main
 from simplenerf.run.cli import load_for_tool
 from tests.conftest import REPO, shared_dir
 
@@ -124,14 +126,40 @@ def test_a_normal_run_prints_no_library_noise(trained):
         assert f"W&B: offline run in {trained / 'run' / 'wandb'}" in text
 
 
-def test_help_describes_simplenerf_and_lists_every_verb_once():
+def test_help_describes_simplenerf_and_lists_every_verb_once_grouped_by_task():
     out = run("--help").stdout
     assert out.startswith("usage: simplenerf <command> [options]")
     assert "SimpleNeRF (SIGGRAPH Asia 2023): Neural Radiance Fields from 2 to 4 photos" in out
-    listed = out[out.index("commands:\n") + len("commands:\n"):].splitlines()
-    assert [line.split()[0] for line in listed] == list(VERBS)
-    assert all(line.startswith("  ") and len(line.split(maxsplit=1)) == 2 for line in listed)  # a verb and its line
+    groups = out.split("\n\n")[2:]
+    assert [group.splitlines()[0] for group in groups] == [f"{task}:" for task in TASKS]
+    for task, group in zip(TASKS, groups, strict=True):
+        listed = group.splitlines()[1:]
+        assert [line.split()[0] for line in listed] == [name for name, v in VERBS.items() if v.task == task]
+        assert all(line.startswith("  ") and len(line.split(maxsplit=1)) == 2 for line in listed)  # verb and line
+    assert sorted(line.split()[0] for g in groups for line in g.splitlines()[1:]) == sorted(VERBS)  # each once
     assert run().stdout == out  # no verb: the same overview
+
+
+def test_version():
+    from simplenerf import __version__
+
+    assert run("--version").stdout == f"simplenerf {__version__}\n"
+
+
+@pytest.mark.parametrize("verb", [v for v in VERBS if v not in LIGHTNING_VERBS])
+def test_help_prints_the_verbs_examples_as_written(verb, capsys):
+    """A verb's --help shows its module's docstring as it is in the source: an example continued with a backslash
+    prints with the backslash and the line break, so it can be pasted into a shell."""
+    import ast
+    import importlib
+
+    module = importlib.import_module(VERBS[verb].target.partition(":")[0])
+    source = Path(module.__file__).read_text()
+    docstring = ast.get_source_segment(source, ast.parse(source).body[0].value)
+    written = docstring[docstring.index('"""') + 3 : -3]
+    with contextlib.suppress(SystemExit):  # (some verbs print their help and return)
+        main([verb, "--help"])
+    assert written.strip() in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("verb", list(VERBS))
@@ -338,6 +366,33 @@ def test_user_augmentation_plugs_in_by_class_path(tmp_path):
     run("fit", *run_args(tmp_path), "--config", str(override), "--trainer.max_steps", "2")
     state = torch.load(tmp_path / "run/checkpoints/last.ckpt", map_location="cpu", weights_only=False)["state_dict"]
     assert state["augmentations.0.field.trunk.0.weight"].shape == (16, 15)  # gamma(p, 0, 2): 15 inputs
+
+
+def test_user_loss_term_plugs_in_by_class_path(tmp_path):
+    """A term defined outside the package (tests/custom_term.py) joins the objective from YAML: it is computed and
+    logged by its name, and the warm-up schedule sets its weight by that name like a built-in term's."""
+    override = tmp_path / "user_term.yaml"
+    override.write_text(
+        "model:\n"
+        "  objective:\n"
+        "    terms:\n"
+        "      - class_path: tests.custom_term.OpacityTerm\n"
+        "        init_args: {weight: 0.5, render: coarse}\n"
+        "trainer:\n"
+        "  log_every_n_steps: 1\n"
+        "  logger:\n"
+        "    class_path: lightning.pytorch.loggers.CSVLogger\n"
+        f"    init_args: {{save_dir: {tmp_path / 'csv'}, name: run, version: 0}}\n"
+        "  callbacks:\n"
+        "    - class_path: simplenerf.run.callbacks.LossWeightSchedule\n"
+        "      init_args: {schedules: {opacity: [[0, 0.0], [1, 0.25]]}}\n"
+    )
+    run("fit", *run_args(tmp_path), "--config", str(override), "--trainer.max_steps", "2")
+    with open(tmp_path / "csv/run/version_0/metrics.csv") as f:
+        rows = [row for row in csv.DictReader(f) if row["train_params/opacity"]]
+    assert [(int(r["step"]), float(r["train_params/opacity"])) for r in rows] == [(0, 0.0), (1, 0.25)]
+    assert rows[0]["train/loss_opacity"] == ""  # weight 0: not computed
+    assert 0.0 <= float(rows[1]["train/loss_opacity"]) <= 1.0  # mean (1 - accumulation)^2 of the coarse render
 
 
 def test_unreadable_image_stops_before_anything_is_written(synthetic_scene, tmp_path):

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from simplenerf.geometry.poses import poses_to_opengl
+from simplenerf.metrics.scores import to_uint8
 from simplenerf.synthetic import generate as sy
 
 H, W = 48, 64  # small full resolution keeps the on-disk tests fast
@@ -186,7 +187,7 @@ def test_views_differ_and_textures_are_feature_rich(scene: sy.SyntheticScene) ->
     assert np.abs(rgb0 - rgb1).mean() > 0.05
     assert rgb0.reshape(-1, 3).std(axis=0).min() > 0.1
     rgb, _ = sy.render_view(scene, scene.c2w[5], 378, 504, scene.focal * 504 / 128)
-    gray = cv2.cvtColor(sy._to_uint8(rgb), cv2.COLOR_RGB2GRAY)
+    gray = cv2.cvtColor(to_uint8(rgb), cv2.COLOR_RGB2GRAY)
     assert len(cv2.SIFT_create().detect(gray, None)) > 300
 
 
@@ -212,7 +213,7 @@ def test_written_images_and_depths_match_rendering(written: Path) -> None:
     for i in (0, 5):
         rgb, depth = sy.render_view(scene, scene.c2w[i], H, W, scene.focal)
         bgr = cv2.imread(str(written / "images" / f"{i:03d}.png"))
-        np.testing.assert_array_equal(bgr[..., ::-1], sy._to_uint8(rgb))  # stored as BGR
+        np.testing.assert_array_equal(bgr[..., ::-1], to_uint8(rgb))  # stored as BGR
         np.testing.assert_array_equal(np.load(written / "depths" / f"{i:03d}.npy"), depth.astype(np.float32))
 
 

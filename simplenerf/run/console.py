@@ -208,6 +208,10 @@ def quiet_libraries() -> None:
     # SimpleNeRF optimises manually, one update per step: a step's checkpoint holds the weights after its update, which
     # is what a resume continues from (Lightning warns about exactly that).
     warnings.filterwarnings("ignore", message=r"Using ModelCheckpoint with manual optimization")
+    # W&B's asyncio manager leaves a coroutine behind when a command stops at once on a signal (test, validate);
+    # Python would warn about it at exit, after the command's one line.
+    warnings.filterwarnings("ignore", message=r"coroutine 'AsyncioManager\._wrap' was never awaited",
+                            category=RuntimeWarning)
     for name in ("lightning.pytorch", "lightning.fabric"):
         for handler in logging.getLogger(name).handlers:
             handler.addFilter(_DropTips())

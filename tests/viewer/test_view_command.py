@@ -1,9 +1,9 @@
 """`simplenerf view` on bad input: one `simplenerf: error:` line, exit status 2."""
 
-import shutil
 import socket
 
 import torch
+import yaml
 
 from tests.run.test_cli import run, run_args
 
@@ -44,7 +44,9 @@ def test_a_port_in_use_for_view_and_for_fit(viewer_run, tmp_path):
 def test_a_checkpoint_that_does_not_fit_its_config(viewer_run, tmp_path):
     folder = tmp_path / "other"
     (folder / "checkpoints").mkdir(parents=True)
-    shutil.copy(viewer_run[0] / "config.yaml", folder / "config.yaml")
+    config = yaml.safe_load((viewer_run[0] / "config.yaml").read_text())
+    config["trainer"]["default_root_dir"] = str(folder)  # its own run, not a copy of viewer_run (a notice of its own)
+    (folder / "config.yaml").write_text(yaml.safe_dump(config))
     state = torch.load(viewer_run[0] / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
     name = "nerf.fine.trunk.0.weight"
     assert name in state["state_dict"]

@@ -26,9 +26,8 @@ import torch
 from simplenerf.commands import split_overrides
 from simplenerf.data.datasets import Frames
 from simplenerf.metrics.lpips import LPIPS
-from simplenerf.metrics.scores import lpips, psnr
+from simplenerf.metrics.scores import lpips, psnr, to_uint8
 from simplenerf.run.cli import make_cli
-from simplenerf.viz.pictures import to_uint8
 
 
 def ray_spread(model, frame, every: int = 37) -> dict[str, float]:

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import pytest
 
-from simplenerf.commands import main
 from simplenerf.data.llff import load_llff_scene
 from simplenerf.data.llff_release import ARCHIVE_EXPECTED, DRIVE_FILE_ID, PAPER_SCENES
 from simplenerf.synthetic.generate import make_synthetic_scene
+from tests.data.download_command import run_download
 from tests.data.local_server import LocalServer
 
 
@@ -49,11 +49,7 @@ def server(archive):
 
 def download(*args: str) -> int:
     """Runs `simplenerf download llff ARGS` in this process; its exit status."""
-    try:
-        main(["download", "llff", *args])
-    except SystemExit as e:
-        return int(e.code or 0)
-    return 0
+    return run_download("llff", *args)
 
 
 def test_the_release_is_named_and_no_checksum_is_invented():

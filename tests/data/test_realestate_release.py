@@ -18,9 +18,9 @@ import cv2
 import numpy as np
 import pytest
 
-from simplenerf.commands import main
 from simplenerf.data.realestate import load_realestate_scene
 from simplenerf.data.realestate_release import PAPER_CLIPS, parse_clip
+from tests.data.download_command import run_download
 from tests.data.video_fixture import camera_file, frame_number, timestamp, write_video
 
 GOOD, GONE, SHORT = "00000000000000aa", "00000000000000bb", "00000000000000cc"
@@ -86,11 +86,8 @@ def world(tmp_path, monkeypatch):
 
 
 def download(*args: str) -> int:
-    try:
-        main(["download", "realestate", *args])
-    except SystemExit as e:
-        return int(e.code or 0)
-    return 0
+    """Runs `simplenerf download realestate ARGS` in this process; its exit status."""
+    return run_download("realestate", *args)
 
 
 def test_the_papers_clips_are_the_releases():

@@ -7,6 +7,11 @@ has an example. Registering a verb is one line here, e.g. `"view": Verb(C + "vie
 module is imported only when its verb runs, so `simplenerf --help` and the verbs that need no torch start at once.
 Every verb runs under `simplenerf.run.console.run_tool`: bad input ends with one `simplenerf: error:` line and exit
 status 2, a signal with one line and 128 + its number.
+
+One spelling on every verb, the Lightning verbs': options in snake_case (`--depth_range`, `--dry_run`), a checkpoint
+is `--ckpt_path`, and the verbs that read a run take the CLI's overrides (`simplenerf fit`'s options) among their own,
+`--data.init_args.scene_dir DIR` as for `fit` (`split_overrides`). The spellings before (`--depth-range`, `--ckpt`,
+overrides after `--`) still work, not shown in `--help`, with a note on stderr.
 """
 
 from __future__ import annotations
@@ -67,27 +72,94 @@ DESCRIPTION = (
 )
 
 
+# The top-level keys of the CLI (LightningCLI's and simplenerf.run.cli's groups) that a verb reading a run takes as
+# overrides with no dot in them: `--seed_everything 1`, `--model CLASS`; every dotted option (`--trainer.x`) is one too.
+CLI_KEYS = ("seed_everything", "trainer", "model", "data", "optimizer", "lr_scheduler")
+
+
 class CommandParser(argparse.ArgumentParser):
     """A verb's parser (`prog` "simplenerf <verb>"): `--help` shows its module's docstring (a description and an
     example); a bad option ends with one `simplenerf: error:` line and a hint, exit status 2, as for the Lightning
-    verbs (`simplenerf.run.console.parser_error_line`)."""
+    verbs (`simplenerf.run.console.parser_error_line`).
+
+    Options are spelled as the Lightning verbs' (snake_case; a kebab-case name is refused when the verb is built).
+    Each option's kebab-case spelling and the spellings given as `old=` (`--ckpt` of `--ckpt_path`) are read as the
+    option with a note on stderr, for the scripts written before; `--help` shows the one spelling."""
 
     def __init__(self, verb: str, doc: str | None, prog: str | None = None) -> None:
+        self.old_spellings: dict[str, str] = {}  # a former spelling -> the option's (`--ckpt` -> `--ckpt_path`)
         super().__init__(prog=prog or f"{PROG} {verb}", description=doc,
                          formatter_class=argparse.RawDescriptionHelpFormatter)
+
+    def add_argument(self, *names: str, old: Sequence[str] = (), **kwargs) -> argparse.Action:
+        """argparse's, with the option's former spellings `old` (its kebab-case one is always taken)."""
+        long = [n for n in names if n.startswith("--")]
+        kebab = [n for n in long if "-" in n[2:]]
+        if kebab:
+            raise ValueError(f"{self.prog}: option {kebab[0]}: spell it {snake_case(kebab[0])} (the Lightning "
+                             "verbs' spelling, that of every verb)")
+        action = super().add_argument(*names, **kwargs)
+        for name in long:
+            if "_" in name:
+                self.old_spellings[name.replace("_", "-")] = name
+        self.old_spellings.update(dict.fromkeys(old, long[0] if long else names[0]))
+        return action
+
+    def parse_known_args(self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None):
+        """argparse's, with the former spellings read as the options' (up to a `--`)."""
+        return super().parse_known_args(self.respelled(sys.argv[1:] if args is None else args), namespace)
+
+    def respelled(self, args: Sequence[str]) -> list[str]:
+        """`args` with every former spelling (`--ckpt X`, `--depth-range=1`) replaced by the option's, each noted
+        once on stderr."""
+        out, noted = list(args), set()
+        for i, arg in enumerate(out):
+            if arg == "--":
+                break
+            name, eq, value = arg.partition("=")
+            new = self.old_spellings.get(name)
+            if new is None:
+                continue
+            out[i] = new + eq + value
+            if name not in noted:
+                noted.add(name)
+                sys.stderr.write(f"{self.prog}: note: {name} is spelled {new} now (as on every verb)\n")
+        return out
 
     def error(self, message: str) -> NoReturn:
         sys.stderr.write(f"{PROG}: error: {message}\nhint: `{self.prog} --help` lists every option\n")
         sys.exit(2)
 
 
+def snake_case(option: str) -> str:
+    """`--depth-range` -> `--depth_range`."""
+    return "--" + option[2:].replace("-", "_")
+
+
 def split_overrides(argv: Sequence[str]) -> tuple[list[str], list[str]]:
-    """A verb's own arguments and, after `--`, the overrides it passes to the CLI (those of `simplenerf fit`)."""
+    """A verb's own arguments and the overrides it passes to the CLI (those of `simplenerf fit`): every option of
+    the CLI among them, dotted (`--data.init_args.scene_dir DIR`, `--trainer.max_steps=5`) or one of `CLI_KEYS`
+    (`--seed_everything 1`), with its value (the next argument, unless the option has `=` or the next is an option),
+    and everything after a `--` (the spelling before; both may be mixed)."""
     argv = list(argv)
-    if "--" not in argv:
-        return argv, []
-    i = argv.index("--")
-    return argv[:i], argv[i + 1 :]
+    after: list[str] = []
+    if "--" in argv:
+        i = argv.index("--")
+        argv, after = argv[:i], argv[i + 1 :]
+    own, overrides = [], []
+    i = 0
+    while i < len(argv):
+        arg = argv[i]
+        name, eq, _ = arg.partition("=")
+        key = name[2:]
+        if name.startswith("--") and ("." in key or key in CLI_KEYS):
+            takes_next = not eq and i + 1 < len(argv) and not argv[i + 1].startswith("--")
+            overrides += argv[i : i + 1 + takes_next]
+            i += 1 + takes_next
+        else:
+            own.append(arg)
+            i += 1
+    return own, overrides + after
 
 
 def overview() -> str:

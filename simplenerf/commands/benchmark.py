@@ -2,10 +2,10 @@ r"""Seconds per training step and peak memory of a config on this machine: times
 warm-up iterations and prints ONE JSON line (benchmarks.speed), e.g.
 
     simplenerf benchmark --config configs/llff.yaml --steps 3 --warmup 2 --rays 256 --precision 32-true \
-        -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.sparse_rays_per_batch 256
+        --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.sparse_rays_per_batch 256
 
-Everything after `--` goes to the CLI as overrides (`simplenerf fit` arguments). `--tf32` allows TF32 matrix products
-in fp32 (CUDA). The JSON holds s/it (median, min, max, all), rays/s, field evaluations/s, peak RSS and peak CUDA
+The CLI's options (`simplenerf fit`'s) are overrides of the config. `--tf32` allows TF32 matrix products in fp32
+(CUDA). The JSON holds s/it (median, min, max, all), rays/s, field evaluations/s, peak RSS and peak CUDA
 memory, CPU user/system time and page faults per iteration, the losses computed, and the machine (CPU model and
 capability: AVX2, AVX-512, AVX-512 BF16 or AMX; the GPU model). Before the first step it names the CPU and warns when
 the precision has no fast kernels on it (`simplenerf.run.hardware`). The config's warm-up schedule
@@ -94,15 +94,28 @@ def emit(record: dict) -> None:
     print(json.dumps(record), flush=True)
 
 
-def training_args(argv: Sequence[str], doc: str | None, extra: dict[str, tuple[int, str]], prog: str | None = None):
-    """The arguments of a training measurement (`--warmup`, `--rays` and `extra`: name -> (default, help)), its CLI
-    overrides and the CLI they build."""
-    own, overrides = split_overrides(argv)
+STEPS = {"steps": (3, "timed iterations")}  # `simplenerf benchmark`'s own option
+
+
+def training_parser(doc: str | None, extra: dict[str, tuple[int, str]], prog: str | None = None) -> CommandParser:
+    """The parser of a training measurement: `measurement_parser`'s options, `--warmup`, `--rays` and `extra` (name
+    -> (default, help))."""
     parser = measurement_parser(doc, prog)
     for name, (default, text) in {"warmup": (2, "untimed iterations first"), **extra}.items():
         parser.add_argument(f"--{name}", type=int, default=default, help=text)
     parser.add_argument("--rays", type=int, help="random rays per iteration (overrides the config's)")
-    args = parser.parse_args(own)
+    return parser
+
+
+def build_parser() -> CommandParser:
+    """`simplenerf benchmark`'s parser."""
+    return training_parser(__doc__, STEPS)
+
+
+def training_args(argv: Sequence[str], doc: str | None, extra: dict[str, tuple[int, str]], prog: str | None = None):
+    """The arguments of a training measurement (`training_parser`'s), its CLI overrides and the CLI they build."""
+    own, overrides = split_overrides(argv)
+    args = training_parser(doc, extra, prog).parse_args(own)
     if args.rays:
         overrides = [*overrides, "--data.init_args.rays_per_batch", str(args.rays)]
     with stdout_to_stderr():
@@ -112,7 +125,7 @@ def training_args(argv: Sequence[str], doc: str | None, extra: dict[str, tuple[i
 
 
 def main(argv: Sequence[str]) -> dict:
-    args, overrides, cli = training_args(argv, __doc__, {"steps": (3, "timed iterations")})
+    args, overrides, cli = training_args(argv, __doc__, STEPS)
     with stdout_to_stderr():
         result = speed().time_training(cli.model, cli.datamodule, args.steps, args.warmup, args.precision,
                                        args.accelerator)

@@ -1,7 +1,7 @@
 """The paper's data, one command per dataset, checked and resumable (docs/usage.md, "Data"):
 
-    simplenerf download llff [--scenes fern horns ...] [--dest data/nerf_llff_data] [--url MIRROR] [--dry-run]
-    simplenerf download realestate --metadata RealEstate10K.tar.gz [--ids ...] [--dest data/realestate10k] [--dry-run]
+    simplenerf download llff [--scenes fern horns ...] [--dest data/nerf_llff_data] [--url MIRROR] [--dry_run]
+    simplenerf download realestate --metadata RealEstate10K.tar.gz [--ids ...] [--dest data/realestate10k] [--dry_run]
 
 llff: the NeRF authors' nerf_llff_data.zip (Google Drive through gdown, or a mirror URL), resumed when cut, its size
 and SHA-256 checked when known (--size, --sha256), only the chosen scenes unpacked, each checked as `fit` checks it.
@@ -66,8 +66,8 @@ def llff_parser() -> CommandParser:
                    help="where the zip is kept (default: <dest>/../nerf_llff_data.zip); an existing one is used")
     p.add_argument("--size", type=int, help="the archive's size in bytes, checked (none is published)")
     p.add_argument("--sha256", help="the archive's SHA-256, checked (none is published)")
-    p.add_argument("--remove-archive", action="store_true", help="delete the zip once the scenes are unpacked")
-    p.add_argument("--dry-run", action="store_true", help="say what would be downloaded, how big and where; do nothing")
+    p.add_argument("--remove_archive", action="store_true", help="delete the zip once the scenes are unpacked")
+    p.add_argument("--dry_run", action="store_true", help="say what would be downloaded, how big and where; do nothing")
     return p
 
 
@@ -151,13 +151,13 @@ def realestate_parser() -> CommandParser:
     p.add_argument("--metadata",
                    help="the dataset's camera files: a folder, RealEstate10K.tar.gz, or its URL (downloaded, "
                         "resumable, into <dest>/.downloads/)")
-    p.add_argument("--metadata-sha256", help="the metadata archive's SHA-256, checked when downloading it")
+    p.add_argument("--metadata_sha256", help="the metadata archive's SHA-256, checked when downloading it")
     p.add_argument("--frames", type=int, default=re10k.CLIP_FRAMES, help="camera lines per clip (default 50)")
     p.add_argument("--size", default="x".join(map(str, re10k.PAPER_SIZE)),
                    help="frame size WIDTHxHEIGHT (default: the paper's 1024x576)")
     p.add_argument("--format", default=re10k.VIDEO_FORMAT, help="yt-dlp's format selection")
-    p.add_argument("--keep-videos", action="store_true", help="keep the videos in <dest>/.downloads/")
-    p.add_argument("--dry-run", action="store_true",
+    p.add_argument("--keep_videos", action="store_true", help="keep the videos in <dest>/.downloads/")
+    p.add_argument("--dry_run", action="store_true",
                    help="say what would be fetched (yt-dlp's format and size when it can ask) and where; write nothing")
     return p
 

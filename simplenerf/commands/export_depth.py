@@ -1,12 +1,12 @@
 r"""A dense NeRF's depth of every frame of its scene: the reference depth of the masked scores and of the depth
 metrics (simplenerf.evaluation.reference_depth), e.g.
 
-    simplenerf export-depth --config configs/dense/llff.yaml --ckpt runs/dense/llff/checkpoints/last.ckpt \
-        --out data/reference_depth/fern -- --data.init_args.scene_dir data/nerf_llff_data/fern
+    simplenerf export-depth --config configs/dense/llff.yaml --ckpt_path runs/dense/llff/checkpoints/last.ckpt \
+        --out data/reference_depth/fern --data.init_args.scene_dir data/nerf_llff_data/fern
 
-Everything after `--` is passed to the CLI as overrides (use the ones the dense NeRF was trained with). Evaluate an
-n-view run against it with `--data.init_args.reference_depth_dir data/reference_depth/fern`. RealEstate-10K: the
-reference for n views is the dense NeRF trained with `--data.init_args.split_views n`.
+The CLI's options (`simplenerf fit`'s) are overrides of the config (use the ones the dense NeRF was trained with).
+Evaluate an n-view run against it with `--data.init_args.reference_depth_dir data/reference_depth/fern`.
+RealEstate-10K: the reference for n views is the dense NeRF trained with `--data.init_args.split_views n`.
 """
 
 from __future__ import annotations
@@ -20,16 +20,20 @@ from simplenerf.evaluation.reference_depth import export_reference_depth
 from simplenerf.run.cli import load_for_tool
 
 
-def main(argv: Sequence[str]) -> None:
-    own, overrides = split_overrides(argv)
+def build_parser() -> CommandParser:
     parser = CommandParser("export-depth", __doc__)
     parser.add_argument("--config", required=True, help="config file of the dense NeRF")
-    parser.add_argument("--ckpt", required=True, help="checkpoint of the dense NeRF")
+    parser.add_argument("--ckpt_path", required=True, old=("--ckpt",), help="checkpoint of the dense NeRF")
     parser.add_argument("--out", required=True, help="folder for <frame name>.npy (created if missing)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu",
                         help="where to render (default: cuda if available, else cpu)")
-    args = parser.parse_args(own)
-    cli = load_for_tool([args.config], overrides, ckpt=args.ckpt, device=args.device)
+    return parser
+
+
+def main(argv: Sequence[str]) -> None:
+    own, overrides = split_overrides(argv)
+    args = build_parser().parse_args(own)
+    cli = load_for_tool([args.config], overrides, ckpt=args.ckpt_path, device=args.device)
     dm, model = cli.datamodule, cli.model
     paths = export_reference_depth(model.nerf, dm.scene, dm.near, model.hparams.chunk, args.out)
     print(f"wrote {len(paths)} depth maps to {args.out}")

@@ -1,17 +1,16 @@
 r"""The geometry a trained run learned: each view's depth map and a coloured point cloud (simplenerf.viz.export), e.g.
 
-    simplenerf export-geometry --config configs/llff.yaml --ckpt runs/llff/checkpoints/last.ckpt \
-        --out runs/llff/geometry -- --data.init_args.scene_dir data/my_scene
+    simplenerf export-geometry --config configs/llff.yaml --ckpt_path runs/llff/checkpoints/last.ckpt \
+        --out runs/llff/geometry --data.init_args.scene_dir data/my_scene
 
 Writes `<out>/depth/<frame>.npy` (float32 camera z-depth) and `.png` (colourised) for each train view (`--views all`:
 every frame of the scene), `<out>/points.ply` (the train views' depth fused into one coloured point cloud; open it in
-MeshLab, CloudCompare or Open3D) and `<out>/export.json` (cameras, counts). Everything after `--` is passed to the CLI
-as overrides (use the ones the run was trained with). Units: the model's scene units.
+MeshLab, CloudCompare or Open3D) and `<out>/export.json` (cameras, counts). The CLI's options (`simplenerf fit`'s) are
+overrides of the config (use the ones the run was trained with). Units: the model's scene units.
 """
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -22,27 +21,27 @@ from simplenerf.run.cli import load_for_tool
 from simplenerf.viz.export import export_geometry
 
 
-def parse_args(argv: Sequence[str]) -> argparse.Namespace:
+def build_parser() -> CommandParser:
     parser = CommandParser("export-geometry", __doc__)
     parser.add_argument("--config", required=True, action="append", help="config file(s) of the run, in order")
-    parser.add_argument("--ckpt", required=True, help="checkpoint of the trained model")
+    parser.add_argument("--ckpt_path", required=True, old=("--ckpt",), help="checkpoint of the trained model")
     parser.add_argument("--out", help="output folder (default: <trainer.default_root_dir>/geometry)")
     parser.add_argument("--views", choices=["train", "all"], default="train",
                         help="export the train views (default) or every frame of the scene")
-    parser.add_argument("--min-accumulation", type=float, default=0.9,
+    parser.add_argument("--min_accumulation", type=float, default=0.9,
                         help="point cloud: keep pixels whose accumulated opacity is above this (default 0.9)")
-    parser.add_argument("--far-factor", type=float, default=1.25,
+    parser.add_argument("--far_factor", type=float, default=1.25,
                         help="point cloud: drop pixels deeper than this x the view's far bound, i.e. the background "
                         "(default 1.25; 0 keeps every depth)")
     parser.add_argument("--stride", type=int, default=1, help="point cloud: every N-th pixel in each direction")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu", help="torch device")
-    return parser.parse_args(argv)
+    return parser
 
 
 def main(argv: Sequence[str]) -> None:
     own, overrides = split_overrides(argv)
-    args = parse_args(own)
-    cli = load_for_tool(args.config, overrides, ckpt=args.ckpt, device=args.device)
+    args = build_parser().parse_args(own)
+    cli = load_for_tool(args.config, overrides, ckpt=args.ckpt_path, device=args.device)
     dm, model = cli.datamodule, cli.model
     scene = dm.scene
     indices = scene.split.train if args.views == "train" else list(range(len(scene.views)))
@@ -57,5 +56,5 @@ def main(argv: Sequence[str]) -> None:
     if summary["points"] == 0:
         opaque = max(v["opaque_fraction"] for v in summary["views"])
         print(f"geometry: no pixel passed both limits (at most {100 * opaque:.0f}% of a view's pixels have an "
-              f"accumulated opacity above {args.min_accumulation}); lower --min-accumulation or --far-factor, or "
+              f"accumulated opacity above {args.min_accumulation}); lower --min_accumulation or --far_factor, or "
               f"train longer")

@@ -1,14 +1,14 @@
 r"""A trained run's depth error at held-out SfM points: the depth score of a real scene without reference depth
 (simplenerf.evaluation.heldout_depth), e.g.
 
-    simplenerf heldout-depth --config configs/dsnerf.yaml --ckpt runs/dsnerf/checkpoints/last.ckpt \
+    simplenerf heldout-depth --config configs/dsnerf.yaml --ckpt_path runs/dsnerf/checkpoints/last.ckpt \
         --out runs/dsnerf/heldout_depth.json \
-        -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.factor 8
+        --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.factor 8
 
-Everything after `--` is passed to the CLI as overrides; `--config` may be the run's own `<run>/config.yaml`. Prints
-one JSON line: the fine depth's error, and under "depths" that of every depth the model renders (fine, coarse and each
-augmentation's); with `--out FILE` also writes it there (`<run>/heldout_depth.json` is where `simplenerf results`
-looks for it).
+The CLI's options (`simplenerf fit`'s) are overrides of the config; `--config` may be the run's own
+`<run>/config.yaml`. Prints one JSON line: the fine depth's error, and under "depths" that of every depth the model
+renders (fine, coarse and each augmentation's); with `--out FILE` also writes it there (`<run>/heldout_depth.json` is
+where `simplenerf results` looks for it).
 """
 
 from __future__ import annotations
@@ -22,19 +22,23 @@ from simplenerf.evaluation.heldout_depth import heldout_depth_error, heldout_obs
 from simplenerf.run.cli import load_for_tool
 
 
-def main(argv: Sequence[str]) -> None:
-    own, overrides = split_overrides(argv)
+def build_parser() -> CommandParser:
     parser = CommandParser("heldout-depth", __doc__)
     parser.add_argument("--config", required=True, help="config file of the run (e.g. <run>/config.yaml)")
-    parser.add_argument("--ckpt", required=True, help="checkpoint of the trained model")
+    parser.add_argument("--ckpt_path", required=True, old=("--ckpt",), help="checkpoint of the trained model")
     parser.add_argument("--cache", default="data/cache/sparse_depth", help="where the SfM reference is cached")
     parser.add_argument("--out", help="also write the JSON result to this file")
-    args = parser.parse_args(own)
-    cli = load_for_tool([args.config], overrides, ckpt=args.ckpt)
+    return parser
+
+
+def main(argv: Sequence[str]) -> None:
+    own, overrides = split_overrides(argv)
+    args = build_parser().parse_args(own)
+    cli = load_for_tool([args.config], overrides, ckpt=args.ckpt_path)
     dm, model = cli.datamodule, cli.model
     observations = heldout_observations(dm.scene, args.cache, str(dm.scene.source.resolve()))
     result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk)
-    line = json.dumps({"ckpt": args.ckpt, "overrides": overrides, **result})
+    line = json.dumps({"ckpt": args.ckpt_path, "overrides": overrides, **result})
     print(line)
     if args.out:
         Path(args.out).write_text(line + "\n")

@@ -8,7 +8,6 @@ motion with pycolmap on the CPU (simplenerf.sfm.photos), e.g.
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -17,7 +16,7 @@ from simplenerf.sfm.mapping import CAMERA_MODELS
 from simplenerf.sfm.photos import process_photos
 
 
-def parse_args(argv: Sequence[str]) -> argparse.Namespace:
+def build_parser() -> CommandParser:
     parser = CommandParser("process-data", __doc__)
     parser.add_argument("--images", required=True, type=Path, help="folder of photos (jpg, png, tif, bmp, webp)")
     parser.add_argument("--output", required=True, type=Path, help="scene folder to create, e.g. data/my_scene")
@@ -26,21 +25,21 @@ def parse_args(argv: Sequence[str]) -> argparse.Namespace:
     parser.add_argument("--camera", choices=["shared", "per-photo"], default="shared",
                         help="one camera for all photos (same camera and zoom; default) or one per photo (several "
                         "cameras or zooms; each focal length is then estimated on its own, which needs many photos)")
-    parser.add_argument("--camera-model", choices=CAMERA_MODELS, default="SIMPLE_RADIAL",
+    parser.add_argument("--camera_model", choices=CAMERA_MODELS, default="SIMPLE_RADIAL",
                         help="COLMAP camera model (default SIMPLE_RADIAL: focal, centre, one radial distortion term)")
-    parser.add_argument("--max-size", type=int, help="downscale photos so the longer side is at most this first")
-    parser.add_argument("--sift-max-size", type=int, default=3200,
+    parser.add_argument("--max_size", type=int, help="downscale photos so the longer side is at most this first")
+    parser.add_argument("--sift_max_size", type=int, default=3200,
                         help="SIFT looks at photos downscaled to at most this longer side (default 3200)")
-    parser.add_argument("--max-features", type=int, default=8192, help="SIFT keypoints per photo (default 8192)")
+    parser.add_argument("--max_features", type=int, default=8192, help="SIFT keypoints per photo (default 8192)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     parser.add_argument("--seed", type=int, default=0, help="seed of COLMAP's random choices")
     parser.add_argument("--threads", type=int, default=-1, help="CPU threads for COLMAP (default: all)")
     parser.add_argument("--verbose", action="store_true", help="show COLMAP's own log")
-    return parser.parse_args(argv)
+    return parser
 
 
 def main(argv: Sequence[str]) -> None:
-    args = parse_args(argv)
+    args = build_parser().parse_args(argv)
     process_photos(
         args.images, args.output, factors=args.factors, shared_camera=args.camera == "shared",
         camera_model=args.camera_model, max_size=args.max_size, sift_max_size=args.sift_max_size,

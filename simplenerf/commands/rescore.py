@@ -3,13 +3,13 @@ r"""Scores a tested run again from its saved outputs with the current definition
 
     simplenerf rescore runs/demo
     simplenerf rescore runs/cpu/fern_simplenerf \
-        --lpips-weights ../shared/data/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz
+        --lpips_weights ../shared/data/lpips/alexnet_trunk_and_lpips_lin_v0.1.npz
 
 The ground truth and the train views come from the run's scene, read with the config the test ran with
-(`<run>/test/config.yaml`; another with --config, overrides after `--`). Prints a table: the old scores (the run's
-metrics.csv), the frames scored again over the saved masks (the new metric definitions alone) and over masks computed
-now (definitions and masks); writes them to `<run>/test/rescored/` (--out): saved_masks.{csv,json}, new.{csv,json},
-mask/<frame>.png. The run's own files are left as they are.
+(`<run>/test/config.yaml`; another with --config, and the CLI's options as overrides). Prints a table: the old
+scores (the run's metrics.csv), the frames scored again over the saved masks (the new metric definitions alone) and
+over masks computed now (definitions and masks); writes them to `<run>/test/rescored/` (--out):
+saved_masks.{csv,json}, new.{csv,json}, mask/<frame>.png. The run's own files are left as they are.
 """
 
 from __future__ import annotations
@@ -28,16 +28,20 @@ from simplenerf.run.cli import load_for_tool
 RUN_ONLY_KEYS = ("ckpt_path", "verbose", "weights_only")
 
 
-def main(argv: Sequence[str]) -> None:
-    own, overrides = split_overrides(argv)
+def build_parser() -> CommandParser:
     parser = CommandParser("rescore", __doc__)
     parser.add_argument("run", help="a run folder tested by `simplenerf test`, or its test/ folder")
     parser.add_argument("--config", action="append", help="config file(s) of the run (default: <test>/config.yaml)")
-    parser.add_argument("--lpips-weights", help="LPIPS weights (default: $SIMPLENERF_LPIPS_WEIGHTS, the torch cache)")
-    parser.add_argument("--no-lpips", action="store_true", help="leave LPIPS out")
-    parser.add_argument("--min-views", type=int, default=MIN_VIEWS, help="train views that must see a pixel")
+    parser.add_argument("--lpips_weights", help="LPIPS weights (default: $SIMPLENERF_LPIPS_WEIGHTS, the torch cache)")
+    parser.add_argument("--no_lpips", action="store_true", help="leave LPIPS out")
+    parser.add_argument("--min_views", type=int, default=MIN_VIEWS, help="train views that must see a pixel")
     parser.add_argument("--out", type=Path, help="output folder (default: <test>/rescored)")
-    args = parser.parse_args(own)
+    return parser
+
+
+def main(argv: Sequence[str]) -> None:
+    own, overrides = split_overrides(argv)
+    args = build_parser().parse_args(own)
     folder = find_test_folder(args.run)
     out = args.out or folder / "rescored"
     configs = args.config or [str(_without_run_keys(folder / "config.yaml", out))]

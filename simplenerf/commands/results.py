@@ -4,11 +4,11 @@ paper's published rows (Tables 1-2 layout; simplenerf.reporting.tables and recor
     simplenerf results SimpleNeRF=runs/demo DS-NeRF=runs/demo_dsnerf --scores both --depth
     simplenerf results SimpleNeRF=runs/s0 SimpleNeRF=runs/s1 DS-NeRF=runs/d0 DS-NeRF=runs/d1    (mean ± std)
     simplenerf results SimpleNeRF='runs/llff/*' DS-NeRF=runs/dsnerf_fern_2v --paper llff --csv table.csv
-    simplenerf results SimpleNeRF='runs/llff/*' --per-scene
+    simplenerf results SimpleNeRF='runs/llff/*' --per_scene
     simplenerf results ../shared/reference_scores/test10{1,2,3}1 --paper llff --depth
 
 Rows: models in the order given. Several runs may share a NAME: runs of different scenes are averaged over all their
-test frames, as the paper does (--per-scene: one table per scene); several runs of the same scene and view count
+test frames, as the paper does (--per_scene: one table per scene); several runs of the same scene and view count
 (e.g. seeds) are repeats, shown as mean ± sample standard deviation over them. Column groups: 2 / 3 / 4 views, each
 LPIPS, SSIM, PSNR (--depth: also depth MAE and SROCC against the reference depth, and the held-out SfM depth error of
 runs with a `<run>/heldout_depth.json`, from `simplenerf heldout-depth --out`). Masked scores by default, as in the
@@ -61,7 +61,7 @@ def build_parser() -> CommandParser:
     parser.add_argument("--depth", action="store_true",
                         help="add depth MAE and SROCC columns to each group (and the held-out SfM depth error where "
                              "runs have one)")
-    parser.add_argument("--per-scene", action="store_true", help="one table per scene instead of means over scenes")
+    parser.add_argument("--per_scene", action="store_true", help="one table per scene instead of means over scenes")
     parser.add_argument("--views", type=int, nargs="+", metavar="N",
                         help="the view-count groups to show, e.g. 2 3 4 (default: those with runs or paper values)")
     parser.add_argument("--paper", choices=list(TABLES),

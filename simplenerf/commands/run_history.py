@@ -35,11 +35,15 @@ def history_table(rows: list[dict], pattern: str) -> tuple[list[str], list[list]
     return ["step", *names], [[step, *(values.get(k, "") for k in names)] for step, values in sorted(by_step.items())]
 
 
-def main(argv: Sequence[str]) -> None:
+def build_parser() -> CommandParser:
     parser = CommandParser("run-history", __doc__)
     parser.add_argument("run", help="the run folder (the W&B logger's save_dir)")
     parser.add_argument("--keys", default="train/.*", help="regular expression the logged names must match")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: Sequence[str]) -> None:
+    args = build_parser().parse_args(argv)
     try:
         header, table = history_table(logged_history(args.run), args.keys)
     except (FileNotFoundError, ValueError) as e:

@@ -3,10 +3,10 @@
 what failed (simplenerf.experiments, docs/experiments.md), e.g.
 
     simplenerf sweep --config configs/sweeps/cpu_grid.yaml --executor local
-    simplenerf sweep --config configs/sweeps/llff_table1.yaml --executor slurm --dry-run
+    simplenerf sweep --config configs/sweeps/llff_table1.yaml --executor slurm --dry_run
     simplenerf sweep status SWEEP_DIR                 (every job's state; SLURM's too when squeue / sacct are here)
     simplenerf sweep cancel SWEEP_DIR                 (scancel what of its SLURM submission is queued or running)
-    simplenerf sweep job SWEEP_DIR STAGE INDEX        (what the sbatch scripts of --dry-run run)
+    simplenerf sweep job SWEEP_DIR STAGE INDEX        (what the sbatch scripts of --dry_run run)
 """
 
 from __future__ import annotations
@@ -23,11 +23,11 @@ from simplenerf.experiments.state import process_alive, read_state, read_status
 from simplenerf.experiments.status import status_table
 
 
-def parser() -> CommandParser:
+def build_parser() -> CommandParser:
     p = CommandParser("sweep", __doc__)
     p.add_argument("--config", required=True, help="the sweep file (e.g. configs/sweeps/cpu_grid.yaml)")
     p.add_argument("--executor", choices=EXECUTORS, help="slurm, local or debug (default: the sweep file's)")
-    p.add_argument("--dry-run", action="store_true",
+    p.add_argument("--dry_run", action="store_true",
                    help="check everything and show what would run; slurm: write the sbatch scripts and submit.sh "
                         "into <sweep>/slurm/ instead of submitting")
     return p
@@ -51,7 +51,7 @@ def main(argv: list[str]) -> None:
 
         job(argv[1:])
         return
-    args = parser().parse_args(argv)
+    args = build_parser().parse_args(argv)
     sweep = load_sweep(args.config)
     executor = args.executor or sweep.executor
     start = time.monotonic()

@@ -1,12 +1,12 @@
 """`simplenerf view RUN`: opens the web viewer of a trained run and prints its URL, e.g.
 
     simplenerf view runs/grid_demo
-    simplenerf view runs/llff/checkpoints/step050000.ckpt --port 8081 -- --data.init_args.scene_dir ...
+    simplenerf view runs/llff/checkpoints/step050000.ckpt --port 8081 --data.init_args.scene_dir ...
 
 RUN is a run folder (its config.yaml and newest checkpoint: last.ckpt, else the newest *.ckpt) or a checkpoint file
-(with its run's config.yaml two folders up, or --config). Everything after `--` is passed to the CLI as overrides.
-Exports go to `<run>/viewer/` unless --out. Bad input (no checkpoint, a port in use, a checkpoint that does not fit
-its config) ends with one line.
+(with its run's config.yaml two folders up, or --config). The CLI's options (`simplenerf fit`'s) are overrides of
+the config. Exports go to `<run>/viewer/` unless --out. Bad input (no checkpoint, a port in use, a checkpoint that
+does not fit its config) ends with one line.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def port_number(text: str) -> int:
     return port
 
 
-def parse_args(argv: list[str]) -> argparse.Namespace:
+def build_parser() -> CommandParser:
     parser = CommandParser("view", __doc__)
     parser.add_argument("run", help="a run folder (trainer.default_root_dir of a fit) or a checkpoint file")
     parser.add_argument("--config", action="append", help="config file(s) of the run (default: <run>/config.yaml)")
@@ -45,7 +45,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--resolution", type=int, help="larger side of the finest render (default: the photos')")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu", help="torch device")
     parser.add_argument("--out", help="folder of screenshots and camera paths (default: <run>/viewer)")
-    return parser.parse_args(argv)
+    return parser
 
 
 def resolve_run(run: Path, configs: list[str] | None) -> tuple[list[str], Path, Path]:
@@ -75,7 +75,7 @@ def resolve_run(run: Path, configs: list[str] | None) -> tuple[list[str], Path, 
 def open_viewer(argv: list[str]) -> Viewer:
     """The viewer of the run `argv` names (the command's arguments), started."""
     own, overrides = split_overrides(argv)
-    args = parse_args(own)
+    args = build_parser().parse_args(own)
     configs, checkpoint, folder = resolve_run(Path(args.run), args.config)
     check_port(args.host, args.port)  # before the model loads: a taken port says so at once
     held = HeldLogs()  # Lightning's lines (devices, seed) are not the viewer's: a bad checkpoint's error stands alone

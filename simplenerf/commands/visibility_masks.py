@@ -2,9 +2,10 @@ r"""Visibility masks of a scene's test frames: the pixels the masked scores eval
 `--min-views` train views (paper Sec. 5.1 and the supplement; simplenerf.evaluation.visibility), e.g.
 
     simplenerf visibility-masks --config configs/llff.yaml \
-        -- --data.init_args.scene_dir data/nerf_llff_data/fern --data.init_args.reference_depth_dir DIR
+        --data.init_args.scene_dir data/nerf_llff_data/fern --data.init_args.reference_depth_dir DIR
 
-Everything after `--` is passed to the CLI as overrides; the data module's split (n_views) decides the train views.
+The CLI's options (`simplenerf fit`'s) are overrides of the config; the data module's split (n_views) decides the
+train views.
 Writes `<out>/<frame>.png` (white = visible, i.e. evaluated by the masked scores) and `<out>/<frame>.npy` (bool), by
 default under `<trainer.default_root_dir>/visibility`, and prints the visible fraction of each frame. The scene needs
 reference depth: the synthetic scene has it; for real scenes train a dense NeRF (configs/dense/*.yaml) and export its
@@ -22,13 +23,17 @@ from simplenerf.evaluation.visibility import MIN_VIEWS
 from simplenerf.run.cli import load_for_tool
 
 
-def main(argv: Sequence[str]) -> None:
-    own, overrides = split_overrides(argv)
+def build_parser() -> CommandParser:
     parser = CommandParser("visibility-masks", __doc__)
     parser.add_argument("--config", required=True, help="config file (its data module and split)")
     parser.add_argument("--out", help="output folder (default: <trainer.default_root_dir>/visibility)")
-    parser.add_argument("--min-views", type=int, default=MIN_VIEWS, help="train views that must see a pixel")
-    args = parser.parse_args(own)
+    parser.add_argument("--min_views", type=int, default=MIN_VIEWS, help="train views that must see a pixel")
+    return parser
+
+
+def main(argv: Sequence[str]) -> None:
+    own, overrides = split_overrides(argv)
+    args = build_parser().parse_args(own)
     cli = load_for_tool([args.config], overrides)
     dm = cli.datamodule
     out = Path(args.out or Path(cli.trainer.default_root_dir) / "visibility")

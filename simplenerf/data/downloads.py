@@ -84,7 +84,7 @@ def partial_path(dest: Path) -> Path:
 
 
 def remote_size(url: str, timeout: float = 10.0) -> int | None:
-    """The Content-Length a HEAD request for `url` reports (None: no answer or none given); for --dry-run."""
+    """The Content-Length a HEAD request for `url` reports (None: no answer or none given); for --dry_run."""
     request = urllib.request.Request(url, method="HEAD", headers={"User-Agent": USER_AGENT})
     try:
         with urllib.request.urlopen(request, timeout=timeout) as response:

@@ -206,7 +206,7 @@ def fetch_video(clip: str, url: str, folder: Path, video_format: str = VIDEO_FOR
 
 
 def probe_video(clip: str, url: str, video_format: str = VIDEO_FORMAT) -> FetchedVideo:
-    """What yt-dlp would fetch (format, size) without downloading it, for --dry-run; ClipError as fetch_video."""
+    """What yt-dlp would fetch (format, size) without downloading it, for --dry_run; ClipError as fetch_video."""
     yt_dlp = require_yt_dlp()
     try:
         with yt_dlp.YoutubeDL({"format": video_format, "quiet": True, "no_warnings": True}) as ydl:

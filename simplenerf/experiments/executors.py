@@ -7,7 +7,7 @@
   stage asks for its own resources (`Resources.for_stage`: the masks and the table no GPU); an array's `%N` is its
   stage's `concurrent_jobs`. `--signal=USR1@90` is Lightning's requeue signal (`SLURMEnvironment(auto_requeue=True)`,
   see `simplenerf.experiments.jobs`); submitit's own preemption signal (USR2) is never sent, so only Lightning requeues.
-  `--dry-run` writes the same arrays as self-contained sbatch scripts plus `submit.sh` instead (`write_slurm_scripts`).
+  `--dry_run` writes the same arrays as self-contained sbatch scripts plus `submit.sh` instead (`write_slurm_scripts`).
 - `local`: the same graph on this machine, each job once the jobs it needs are done, `resources.concurrent_jobs`
   submitit `LocalExecutor` jobs (processes) at a time, each job of a GPU stage on GPUs of its own (`GpuPool`).
 - `debug`: the same, in this process, one job after the other (submitit's `DebugExecutor`).
@@ -345,7 +345,7 @@ def submit_slurm(plan: Plan, todo: list[Unit], log=print) -> dict[str, str]:
 
 
 def write_slurm_scripts(plan: Plan, todo: list[Unit]) -> list[Path]:
-    """`--dry-run --executor slurm`: per array `<sweep>/slurm/<array>.sbatch` (what submitit would submit, its command
+    """`--dry_run --executor slurm`: per array `<sweep>/slurm/<array>.sbatch` (what submitit would submit, its command
     `simplenerf sweep job` running unit $SLURM_ARRAY_TASK_ID of `<array>.json`), `arrays.json` and `submit.sh`,
     which submits them in order with their per-task dependencies and records the job ids in `submitted.txt` (for
     `sweep status` and `sweep cancel`). Nothing is submitted."""
@@ -361,7 +361,7 @@ def write_slurm_scripts(plan: Plan, todo: list[Unit]) -> list[Path]:
     lines = ["#!/bin/bash",
              f"# Submits the sweep {plan.sweep.name}: {len(arrays)} SLURM job arrays, each after the tasks whose "
              "output it reads (afterok:<array>_<task>, aftercorr: task i after task i; the table afterany).",
-             "# Written by `python -m simplenerf sweep --dry-run --executor slurm`; submit with `bash submit.sh` (from "
+             "# Written by `python -m simplenerf sweep --dry_run --executor slurm`; submit with `bash submit.sh` (from "
              "any folder).", "set -euo pipefail", f"submitted={shlex.quote(str(folder / SUBMITTED))}",
              ': > "$submitted"  # array name and job id of each submission (`sweep status`, `sweep cancel`)']
     python = shlex.quote(sys.executable)

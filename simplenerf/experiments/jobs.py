@@ -196,7 +196,7 @@ def _close(state: dict, folder: Path, unit: Unit, start: float) -> None:
 
 def main(argv: list[str]) -> None:
     """`python -m simplenerf sweep job SWEEP_DIR STAGE INDEX`: unit INDEX of `<SWEEP_DIR>/slurm/<STAGE>.json` (the
-    self-contained sbatch scripts of `sweep --dry-run --executor slurm`)."""
+    self-contained sbatch scripts of `sweep --dry_run --executor slurm`)."""
     import json
 
     if len(argv) != 3:

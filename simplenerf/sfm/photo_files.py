@@ -173,7 +173,7 @@ def undistortion(camera: pycolmap.Camera) -> Undistortion:
     low, high = 0.25, 4.0
     if not inside(high):
         raise SfMError(f"the estimated camera ({camera.model.name}, {camera.params.tolist()}) distorts so strongly "
-                        f"that no undistorted view fits in the photo; try --camera-model SIMPLE_PINHOLE. {ADVICE}")
+                        f"that no undistorted view fits in the photo; try --camera_model SIMPLE_PINHOLE. {ADVICE}")
     for _ in range(50):
         middle = 0.5 * (low + high)
         low, high = (low, middle) if inside(middle) else (middle, high)

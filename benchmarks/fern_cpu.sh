@@ -50,8 +50,8 @@ for variant in "${variants[@]}"; do
   fi
   "$PYTHON" -m simplenerf test "$@" --trainer.logger false --trainer.default_root_dir "$out" \
     --evaluation.output_dir "$out/test" --ckpt_path "$ckpt"
-  "$PYTHON" -m simplenerf heldout-depth --config "$config" --ckpt "$ckpt" --out "$out/heldout_depth.json" \
-    -- "${model_args[@]}"
+  "$PYTHON" -m simplenerf heldout-depth --config "$config" --ckpt_path "$ckpt" --out "$out/heldout_depth.json" \
+    "${model_args[@]}"
 done
 
 table=()

@@ -77,8 +77,8 @@ for scene in "$@"; do
       "$PYTHON" -m simplenerf test --config "$config" "${args[@]}" --trainer.logger false \
         --trainer.default_root_dir "$run" --ckpt_path "$run/checkpoints/last.ckpt"
       if [ $llff = 1 ]; then
-        "$PYTHON" -m simplenerf heldout-depth --config "$config" --ckpt "$run/checkpoints/last.ckpt" \
-          --out "$run/heldout_depth.json" -- "${args[@]}"
+        "$PYTHON" -m simplenerf heldout-depth --config "$config" --ckpt_path "$run/checkpoints/last.ckpt" \
+          --out "$run/heldout_depth.json" "${args[@]}"
       fi
     done
   done
@@ -86,4 +86,4 @@ done
 
 done_runs=()
 for entry in "${table[@]}"; do [ -f "${entry#*=}/test/summary.json" ] && done_runs+=("$entry"); done
-[ ${#done_runs[@]} -gt 0 ] && "$PYTHON" -m simplenerf results --per-scene --scores full --depth "${done_runs[@]}"
+[ ${#done_runs[@]} -gt 0 ] && "$PYTHON" -m simplenerf results --per_scene --scores full --depth "${done_runs[@]}"

@@ -1,11 +1,11 @@
 """Times full-frame rendering of test views (the data module's predict frames, in order); prints ONE JSON line, e.g.
 
-    python -m benchmarks.render --config configs/llff.yaml --frames 1 [--ckpt runs/llff/checkpoints/last.ckpt] \
+    python -m benchmarks.render --config configs/llff.yaml --frames 1 [--ckpt_path runs/llff/checkpoints/last.ckpt] \
         -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern
 
 The first test view of fern at factor 4 is frame 0, 1008x756 = 762048 rays. The JSON holds s/frame (median, min,
 max, all), rays/s, field evaluations/s (coarse + (coarse + fine) samples per ray: 256 in the paper config), peak RSS
-and peak CUDA memory. Without --ckpt the weights are the initial ones: the same work per ray, other pictures. Rays
+and peak CUDA memory. Without --ckpt_path the weights are the initial ones: the same work per ray, other pictures. Rays
 per forward pass: `--model.chunk` (after `--`). `--warmup W` renders W untimed frames first.
 """
 
@@ -147,7 +147,8 @@ def time_rendering(
 def main(argv: list[str] | None = None) -> dict:
     own, overrides = split_overrides(sys.argv[1:] if argv is None else argv)
     parser = measurement_parser(__doc__, prog="python -m benchmarks.render")
-    parser.add_argument("--ckpt", default=None, help="trained weights (default: initial weights, same cost)")
+    parser.add_argument("--ckpt_path", dest="ckpt", old=("--ckpt",), default=None,
+                        help="trained weights (default: initial weights, same cost)")
     parser.add_argument("--frames", type=int, default=1, help="timed frames (test views in order)")
     parser.add_argument("--warmup", type=int, default=0, help="untimed frames first")
     parser.add_argument("--rows", type=int, default=None, help="render only the top ROWS rows (a quick rays/s check)")

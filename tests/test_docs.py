@@ -184,7 +184,7 @@ def test_every_documented_python_module_exists():
 
 
 @pytest.mark.parametrize(("verb", "option"), [("fit", "--ckpt_path"), ("fit", "--data.init_args.scene_dir"),
-                                              ("sweep", "--dry-run")])
+                                              ("sweep", "--dry_run")])
 def test_a_renamed_option_would_be_caught(verb, option):
     """The check is not vacuous: these options are documented with their verb and known; renamed, they would not be."""
     assert any(v == verb and option in opts for _, _, v, opts in commands())

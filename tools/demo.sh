@@ -59,8 +59,8 @@ if [ "$baseline_status" -ne 0 ]; then
 fi
 grep '^\[demo\]' "$baseline_log"
 timed "video" "$PYTHON" -m simplenerf render-video --config configs/grid/demo.yaml \
-  --ckpt "$RUNS/grid_demo/checkpoints/last.ckpt" --frames 40 --rotations 1 --fps 15 \
-  -- --trainer.default_root_dir "$RUNS/grid_demo"
+  --ckpt_path "$RUNS/grid_demo/checkpoints/last.ckpt" --frames 40 --rotations 1 --fps 15 \
+  --trainer.default_root_dir "$RUNS/grid_demo"
 echo "[demo] total: $((SECONDS - start)) s"
 echo "Test metrics on the synthetic 'objects' scene (3 views, same budget), renders in $RUNS/grid_demo*/test:"
 "$PYTHON" -m simplenerf results SimpleNeRF="$RUNS/grid_demo" DS-NeRF="$RUNS/grid_demo_dsnerf" --scores both --depth

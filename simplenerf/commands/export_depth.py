@@ -22,7 +22,7 @@ from simplenerf.run.cli import load_for_tool
 
 def build_parser() -> CommandParser:
     parser = CommandParser("export-depth", __doc__)
-    parser.add_argument("--config", required=True, help="config file of the dense NeRF")
+    parser.add_argument("--config", required=True, action="append", help="config file(s) of the dense NeRF, in order")
     parser.add_argument("--ckpt_path", required=True, old=("--ckpt",), help="checkpoint of the dense NeRF")
     parser.add_argument("--out", required=True, help="folder for <frame name>.npy (created if missing)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu",
@@ -33,7 +33,7 @@ def build_parser() -> CommandParser:
 def main(argv: Sequence[str]) -> None:
     own, overrides = split_overrides(argv)
     args = build_parser().parse_args(own)
-    cli = load_for_tool([args.config], overrides, ckpt=args.ckpt_path, device=args.device)
+    cli = load_for_tool(args.config, overrides, ckpt=args.ckpt_path, device=args.device)
     dm, model = cli.datamodule, cli.model
     paths = export_reference_depth(model.nerf, dm.scene, dm.near, model.hparams.chunk, args.out)
     print(f"wrote {len(paths)} depth maps to {args.out}")

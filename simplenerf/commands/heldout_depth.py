@@ -24,7 +24,8 @@ from simplenerf.run.cli import load_for_tool
 
 def build_parser() -> CommandParser:
     parser = CommandParser("heldout-depth", __doc__)
-    parser.add_argument("--config", required=True, help="config file of the run (e.g. <run>/config.yaml)")
+    parser.add_argument("--config", required=True, action="append",
+                        help="config file(s) of the run, in order (e.g. <run>/config.yaml)")
     parser.add_argument("--ckpt_path", required=True, old=("--ckpt",), help="checkpoint of the trained model")
     parser.add_argument("--cache", default="data/cache/sparse_depth", help="where the SfM reference is cached")
     parser.add_argument("--out", help="also write the JSON result to this file")
@@ -34,7 +35,7 @@ def build_parser() -> CommandParser:
 def main(argv: Sequence[str]) -> None:
     own, overrides = split_overrides(argv)
     args = build_parser().parse_args(own)
-    cli = load_for_tool([args.config], overrides, ckpt=args.ckpt_path)
+    cli = load_for_tool(args.config, overrides, ckpt=args.ckpt_path)
     dm, model = cli.datamodule, cli.model
     observations = heldout_observations(dm.scene, args.cache, str(dm.scene.source.resolve()))
     result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk)

@@ -1,5 +1,5 @@
 r"""Visibility masks of a scene's test frames: the pixels the masked scores evaluate, those seen by at least
-`--min-views` train views (paper Sec. 5.1 and the supplement; simplenerf.evaluation.visibility), e.g.
+`--min_views` train views (paper Sec. 5.1 and the supplement; simplenerf.evaluation.visibility), e.g.
 
     simplenerf visibility-masks --config configs/llff.yaml \
         --data.init_args.scene_dir data/nerf_llff_data/fern --data.init_args.reference_depth_dir DIR
@@ -25,7 +25,8 @@ from simplenerf.run.cli import load_for_tool
 
 def build_parser() -> CommandParser:
     parser = CommandParser("visibility-masks", __doc__)
-    parser.add_argument("--config", required=True, help="config file (its data module and split)")
+    parser.add_argument("--config", required=True, action="append",
+                        help="config file(s), in order (its data module and split)")
     parser.add_argument("--out", help="output folder (default: <trainer.default_root_dir>/visibility)")
     parser.add_argument("--min_views", type=int, default=MIN_VIEWS, help="train views that must see a pixel")
     return parser
@@ -34,7 +35,7 @@ def build_parser() -> CommandParser:
 def main(argv: Sequence[str]) -> None:
     own, overrides = split_overrides(argv)
     args = build_parser().parse_args(own)
-    cli = load_for_tool([args.config], overrides)
+    cli = load_for_tool(args.config, overrides)
     dm = cli.datamodule
     out = Path(args.out or Path(cli.trainer.default_root_dir) / "visibility")
     fractions = export_visibility_masks(dm.scene, out, args.min_views)

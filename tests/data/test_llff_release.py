@@ -1,5 +1,5 @@
 """`simplenerf download llff` through the real command, from a local HTTP server (tests/data/local_server.py) serving
-a zip made here from the synthetic generator's scenes in the LLFF layout: --dry-run, a download cut off halfway and
+a zip made here from the synthetic generator's scenes in the LLFF layout: --dry_run, a download cut off halfway and
 resumed, only the chosen scenes and factors unpacked and checked as `fit` checks them, the manifest, a rerun that skips,
 a wrong checksum, a scene the archive lacks and a broken archive. No network beyond 127.0.0.1."""
 
@@ -61,7 +61,7 @@ def test_the_release_is_named_and_no_checksum_is_invented():
 def test_dry_run_says_what_how_big_and_where_and_writes_nothing(server, archive, tmp_path, capsys):
     dest = tmp_path / "data" / "nerf_llff_data"
     assert download("--url", server.url("/nerf_llff_data.zip"), "--dest", str(dest), "--scenes", "fern",
-                    "--dry-run") == 0
+                    "--dry_run") == 0
     out = capsys.readouterr().out
     assert f"archive:  {tmp_path / 'data' / 'nerf_llff_data.zip'} (to download, " in out
     assert f"kB ({len(archive)} bytes))" in out

@@ -2,7 +2,7 @@
 whose YoutubeDL "downloads" a synthetic PyAV video (tests/data/video_fixture.py: each frame shows its number), the
 metadata is a RealEstate10K.tar.gz made here. Checks that exactly the camera file's frames come out at the asked size,
 that a gone video or a timestamp past the video's end is one line naming the clip with nothing half-written, that
-complete clips are skipped, the manifest, --dry-run, and that `fit`'s loader reads what it writes."""
+complete clips are skipped, the manifest, --dry_run, and that `fit`'s loader reads what it writes."""
 
 from __future__ import annotations
 
@@ -144,7 +144,7 @@ def test_a_timestamp_past_the_videos_end_writes_nothing(world, capsys):
 
 def test_dry_run_reads_the_camera_files_asks_ytdlp_and_writes_nothing(world, capsys):
     assert download("--ids", GOOD, GONE, "--metadata", str(world.metadata), "--dest", str(world.dest),
-                    "--dry-run") == 0
+                    "--dry_run") == 0
     out = capsys.readouterr().out
     assert f"clips:    2 (2 to fetch) into {world.dest}/<id>/" in out
     assert f"  {GOOD}  50 frames from first camera line: fetch {world.urls[GOOD]}: format 137 64x48, " in out
@@ -170,11 +170,11 @@ def test_metadata_from_a_url_is_downloaded_checked_and_used(world, capsys):
     with LocalServer() as server:
         server.behaviour.files["/RealEstate10K.tar.gz"] = data
         url = server.url("/RealEstate10K.tar.gz")
-        assert download("--ids", GOOD, "--metadata", url, "--metadata-sha256", "cd" * 32, "--dest",
+        assert download("--ids", GOOD, "--metadata", url, "--metadata_sha256", "cd" * 32, "--dest",
                         str(world.dest)) == 2
         assert f"has SHA-256 {hashlib.sha256(data).hexdigest()}, expected {'cd' * 32}; deleted it" in \
             capsys.readouterr().err
-        assert download("--ids", GOOD, "--metadata", url, "--metadata-sha256", hashlib.sha256(data).hexdigest(),
+        assert download("--ids", GOOD, "--metadata", url, "--metadata_sha256", hashlib.sha256(data).hexdigest(),
                         "--dest", str(world.dest)) == 0
     assert (world.dest / ".downloads" / "RealEstate10K.tar.gz").read_bytes() == data
     assert len((world.dest / GOOD / f"{GOOD}.txt").read_text().splitlines()) == 51  # the first 50 camera lines

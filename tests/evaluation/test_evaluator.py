@@ -227,7 +227,7 @@ def test_visibility_masks_verb(synthetic_scene, tmp_path) -> None:
 
     def tool(scene_dir: Path) -> subprocess.CompletedProcess:
         return subprocess.run(
-            [sys.executable, "-m", "simplenerf", "visibility-masks", "--config", "configs/dsnerf.yaml", "--",
+            [sys.executable, "-m", "simplenerf", "visibility-masks", "--config", "configs/dsnerf.yaml",
              "--data.init_args.scene_dir", str(scene_dir), "--data.init_args.factor", "1",
              "--trainer.default_root_dir", str(tmp_path / "run")],
             cwd=REPO, capture_output=True, text=True, timeout=300,

@@ -97,7 +97,7 @@ def test_the_tool_rescores_a_cli_run(tmp_path):
     run("fit", *run_args(tmp_path), "--trainer.max_steps", "1", "--data.init_args.sparse_rays_per_batch", "0")
     run("test", *run_args(tmp_path), "--ckpt_path", "last", "--evaluation.lpips", "false")
     tool = [sys.executable, "-m", "simplenerf", "rescore"]
-    done = subprocess.run([*tool, str(tmp_path / "run"), "--no-lpips"], cwd=REPO, capture_output=True, text=True,
+    done = subprocess.run([*tool, str(tmp_path / "run"), "--no_lpips"], cwd=REPO, capture_output=True, text=True,
                           timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     old = json.loads((tmp_path / "run" / "test" / "summary.json").read_text())

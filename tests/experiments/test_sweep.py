@@ -254,7 +254,7 @@ def test_slurm_dry_run_scripts_wait_per_task_and_ask_per_stage_resources(table1_
     (a failed fit cancels its one test), depth task i after dense task i, the masks after their scene's depth, the
     table after every test whatever their outcome; the masks and the table ask for no GPU. submit.sh runs as it is
     (a stand-in sbatch) and records the job ids for `sweep status`."""
-    proc = sweep_cli("--config", str(table1_sweep), "--executor", "slurm", "--dry-run")
+    proc = sweep_cli("--config", str(table1_sweep), "--executor", "slurm", "--dry_run")
     assert proc.returncode == 0, proc.stderr
     folder = tmp_path / "out" / "slurm"
     arrays = json.loads((folder / "arrays.json").read_text())
@@ -398,7 +398,7 @@ def test_status_asks_slurm_and_cancel_cancels_what_is_queued_or_running(table1_s
     """A submitted sweep (the dry run's submit.sh with a stand-in sbatch: arrays 1001, 1002, ...), then stand-in
     squeue / sacct: what SLURM killed shows with its state and job id, what waits shows queued; `sweep cancel` sends
     scancel the arrays that still have something queued or running."""
-    assert sweep_cli("--config", str(table1_sweep), "--executor", "slurm", "--dry-run").returncode == 0
+    assert sweep_cli("--config", str(table1_sweep), "--executor", "slurm", "--dry_run").returncode == 0
     out = tmp_path / "out"
     bin_dir = tmp_path / "bin"
     fake_sbatch(bin_dir)

@@ -160,13 +160,13 @@ def test_means_run_over_all_frames_not_over_scene_means(tmp_path, capsys):
     assert row.values[(2, "masked_ssim")] == 0.5 and row.frames[(2, "masked_ssim")] == 3  # (0.25 + 0.5 + 0.75) / 3
     main([f"A={tmp_path}/a", f"A={tmp_path}/b", "--scores", "full"])
     assert table_lines(capsys.readouterr().out)[3] == "| A | 0.5000 | 0.5000 | 23.00 |"
-    main([f"A={tmp_path}/a", f"A={tmp_path}/b", "--scores", "full", "--per-scene"])
+    main([f"A={tmp_path}/a", f"A={tmp_path}/b", "--scores", "full", "--per_scene"])
     out = capsys.readouterr().out
     assert table_lines(out.split("### horns")[1])[3] == "| A | 0.5000 | 0.5000 | 24.00 |"
 
 
 def test_per_scene_tables(runs, capsys):
-    main([*args_for(runs), "--per-scene", "--scores", "both"])
+    main([*args_for(runs), "--per_scene", "--scores", "both"])
     out = capsys.readouterr().out
     assert [line for line in out.splitlines() if line.startswith("###")] == ["### fern", "### horns"]
     fern = out.split("### fern")[1].split("### horns")[0]
@@ -367,7 +367,7 @@ def test_the_release_row_is_the_papers_row(capsys):
     assert table_lines(capsys.readouterr().out)[3] == ("| SimpleNeRF (release) | 0.3899 | 0.5529 | 17.57 | 0.2777 | "
                                                        "0.7531 |")
     # Per scene: the frame means of each scene; fern's full-frame PSNR is PER_SCENE's 17.01.
-    main([folders[0], "--scores", "full", "--per-scene"])
+    main([folders[0], "--scores", "full", "--per_scene"])
     out = capsys.readouterr().out
     fern = out.split("### fern")[1].split("###")[0]
     assert table_lines(fern)[3] == "| SimpleNeRF (release) | 0.5089 | 0.4967 | 17.01 |"

@@ -184,7 +184,7 @@ def test_an_unknown_verb_is_one_error_line():
 def test_a_verbs_bad_option_is_one_error_line_and_a_hint():
     proc = run("render-video", "--config", "configs/demo.yaml", check=False)
     assert proc.returncode == 2
-    assert proc.stderr.splitlines() == ["simplenerf: error: the following arguments are required: --ckpt",
+    assert proc.stderr.splitlines() == ["simplenerf: error: the following arguments are required: --ckpt_path",
                                         "hint: `simplenerf render-video --help` lists every option"]
 
 

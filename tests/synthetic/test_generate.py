@@ -299,7 +299,7 @@ def test_factor_must_divide_resolution(tmp_path: Path, factors: tuple[int, ...])
 def test_command_line_entry(tmp_path: Path, capsys) -> None:
     from simplenerf.commands import main
 
-    main(["synthetic", str(tmp_path / "cli"), "--height", "24", "--width", "32", "--n-frames", "2", "--factors", "1",
+    main(["synthetic", str(tmp_path / "cli"), "--height", "24", "--width", "32", "--n_frames", "2", "--factors", "1",
           "2"])
     assert capsys.readouterr().out == f"{tmp_path / 'cli'}\n"
     assert (tmp_path / "cli" / "images_2" / "001.png").is_file()

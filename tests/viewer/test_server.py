@@ -110,7 +110,7 @@ def test_screenshot_and_camera_path_export(viewer, viewer_run, tmp_path):
     # render-video takes the exported path: one frame per pose
     folder, video = viewer_run[0], tmp_path / "path.mp4"
     proc = subprocess.run([sys.executable, "-m", "simplenerf", "render-video", "--config", str(folder / "config.yaml"),
-                           "--ckpt", str(folder / "checkpoints" / "last.ckpt"), "--trajectory", str(out),
+                           "--ckpt_path", str(folder / "checkpoints" / "last.ckpt"), "--trajectory", str(out),
                            "--scale", "0.25", "--out", str(video)], cwd=REPO, capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]

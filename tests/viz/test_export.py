@@ -114,7 +114,7 @@ def test_export_geometry_verb_on_the_demo_config(tmp_path) -> None:
     torch.save({"state_dict": cli.model.state_dict()}, ckpt)
     env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true"}
     proc = subprocess.run([sys.executable, "-m", "simplenerf", "export-geometry", "--config", "configs/demo.yaml",
-                           "--ckpt", str(ckpt), "--min-accumulation", "0", "--far-factor", "0", "--stride", "4", "--",
+                           "--ckpt_path", str(ckpt), "--min_accumulation", "0", "--far_factor", "0", "--stride", "4",
                            *args[2:]], cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = tmp_path / "run" / "geometry"

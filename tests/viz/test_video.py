@@ -133,8 +133,8 @@ def test_render_video_verb_on_the_demo_config(tmp_path):
     cli = make_cli([*args, "--trainer.logger", "false"], run=False)  # an untrained model: its state dict will do
     ckpt = tmp_path / "model.ckpt"
     torch.save({"state_dict": cli.model.state_dict()}, ckpt)
-    proc = run_tool("--config", "configs/demo.yaml", "--ckpt", str(ckpt), "--frames", "3", "--scale", "0.25",
-                    "--", *args[2:])
+    proc = run_tool("--config", "configs/demo.yaml", "--ckpt_path", str(ckpt), "--frames", "3", "--scale", "0.25",
+                    *args[2:])
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = tmp_path / "run" / "video_spiral.mp4"  # default: the run folder, spiral for an LLFF-style scene
     assert f"video: {out} (3 frames of 64x24, spiral;" in proc.stdout
@@ -143,7 +143,7 @@ def test_render_video_verb_on_the_demo_config(tmp_path):
 
 
 def test_render_video_verb_missing_checkpoint_is_one_line_error(tmp_path):
-    proc = run_tool("--config", "configs/demo.yaml", "--ckpt", str(tmp_path / "nope.ckpt"))
+    proc = run_tool("--config", "configs/demo.yaml", "--ckpt_path", str(tmp_path / "nope.ckpt"))
     assert proc.returncode == 2
     expected = f"simplenerf: error: checkpoint {tmp_path / 'nope.ckpt'} does not exist"
     assert proc.stderr.strip().splitlines() == [expected]

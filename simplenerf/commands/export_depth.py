@@ -12,12 +12,14 @@ reference for n views is the dense NeRF trained with `--data.init_args.split_vie
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import torch
 
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.reference_depth import export_reference_depth
 from simplenerf.run.cli import load_for_tool
+from simplenerf.run.lock import lock_output
 
 
 def main(argv: Sequence[str]) -> None:
@@ -29,6 +31,7 @@ def main(argv: Sequence[str]) -> None:
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu",
                         help="where to render (default: cuda if available, else cpu)")
     args = parser.parse_args(own)
+    lock_output(Path(args.out))  # an output inside a run folder: not while a fit or test writes that run
     cli = load_for_tool([args.config], overrides, ckpt=args.ckpt, device=args.device)
     dm, model = cli.datamodule, cli.model
     paths = export_reference_depth(model.nerf, dm.scene, dm.near, model.hparams.chunk, args.out)

@@ -6,7 +6,8 @@ r"""Video of a trained run along the scene's camera path: [RGB | depth] side by 
 Paths: `spiral` (LLFF: 120 frames, 2 rotations around the train views) or `recorded` (RealEstate-10K: the clip's
 own cameras), or `--trajectory FILE`, a camera path exported from `simplenerf view` (its poses, size and fps).
 Default: the scene's `camera_path` (LLFF: `spiral`, RealEstate-10K: `recorded`). Everything
-after `--` is passed to the CLI as overrides. Writes <trainer.default_root_dir>/video_<path>.mp4 unless --out.
+after `--` is passed to the CLI as overrides. Writes <trainer.default_root_dir>/video_<path>.mp4 unless --out (not
+while a fit or test holds that run folder: docs/running.md).
 The depth colour range used is printed; give it to another model's video with --depth-range to compare the two.
 """
 
@@ -20,6 +21,7 @@ import torch
 
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.run.cli import load_for_tool
+from simplenerf.run.lock import lock_output
 from simplenerf.viz.camera_path import read_camera_path
 from simplenerf.viz.video import render_camera_path_video, render_scene_video
 
@@ -49,6 +51,7 @@ def main(argv: Sequence[str]) -> None:
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt, device=args.device)
     if path is not None:
         out = args.out or Path(cli.trainer.default_root_dir) / f"video_{Path(args.trajectory).stem}.mp4"
+        lock_output(Path(out))  # not while a fit or test writes that run
         written, n, width, height, (closest, farthest) = render_camera_path_video(
             cli.model, cli.datamodule, path, out, args.scale,
             tuple(args.depth_range) if args.depth_range else None)
@@ -57,6 +60,7 @@ def main(argv: Sequence[str]) -> None:
         return
     kind = args.path or cli.datamodule.scene.camera_path
     out = args.out or Path(cli.trainer.default_root_dir) / f"video_{kind}.mp4"
+    lock_output(Path(out))
     written, n, width, height, kind, (closest, farthest) = render_scene_video(
         cli.model, cli.datamodule, out, kind, args.frames, args.rotations, args.scale, args.fps,
         tuple(args.depth_range) if args.depth_range else None,

@@ -81,16 +81,21 @@ def _plain(value: Any) -> Any:
 
 
 def scene_digest(scene: Scene) -> str:
-    """A scene's content as a resume compares it: the first 16 hex digits of the SHA-256 of its frames' image names,
-    poses (camera-to-world), intrinsics and near/far bounds as loaded (scaled and recentred), the numbers rounded to
-    5 decimals so that a copy read on another machine gives the same. The same scene in another folder (moved or
-    copied) has the same digest; other poses or other images (names) do not. Pixels are not read again: a run whose
-    image files were replaced under the same names is not told apart."""
+    """A scene's content as a resume compares it: the first 16 hex digits of the SHA-256 of its frames' image names
+    and cameras as its files give them (`Scene.file_cameras`: LLFF's poses_bounds.npy, a RealEstate-10K clip's
+    lines), so the same whatever the split and on any machine. The same scene in another folder (moved or copied)
+    has the same digest; other poses or other images (names) do not. Pixels are not read again: a scene whose image
+    files were replaced under the same names is not told apart. A format that does not give `file_cameras`: the
+    loaded cameras (scaled and recentred on the train views) and bounds, rounded to 5 decimals."""
     digest = hashlib.sha256(json.dumps([str(name) for name in scene.views.names]).encode())
-    for values in (scene.views.c2w, scene.views.intrinsics, scene.bounds):
-        array = values.detach().cpu().numpy() if isinstance(values, torch.Tensor) else np.asarray(values)
-        array = np.round(array.astype(np.float64), 5) + 0.0  # + 0.0: no -0.0, whose bytes differ from 0.0's
-        digest.update(str(array.shape).encode() + array.tobytes())
+    if scene.file_cameras is not None:
+        arrays = [np.asarray(scene.file_cameras, dtype=np.float64)]
+    else:
+        loaded = (scene.views.c2w, scene.views.intrinsics, scene.bounds)
+        arrays = [np.round(np.asarray(a.detach().cpu() if isinstance(a, torch.Tensor) else a, dtype=np.float64), 5)
+                  + 0.0 for a in loaded]  # + 0.0: no -0.0, whose bytes differ from 0.0's
+    for array in arrays:
+        digest.update(str(array.shape).encode() + np.ascontiguousarray(array).tobytes())
     return digest.hexdigest()[:16]
 
 

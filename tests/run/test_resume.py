@@ -3,6 +3,7 @@ the code since it was trained) passes at the current code's default and nowhere 
 one-line errors are in tests/run/test_faults.py."""
 
 import copy
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -144,10 +145,18 @@ def test_a_run_from_before_the_move_reads_its_class_paths_as_the_current_ones(tm
 
 def test_a_scene_is_its_content_wherever_its_folder_is(synthetic_scene, tmp_path):
     """The digest is of the image names and poses: a copy elsewhere has the same, other poses or names do not."""
-    digest = scene_digest(load_llff_scene(synthetic_scene, 1, 3))
+    scene = load_llff_scene(synthetic_scene, 1, 3)
+    digest = scene_digest(scene)
     assert len(digest) == 16 and int(digest, 16) >= 0
     copied = Path(shutil.copytree(synthetic_scene, tmp_path / "copied"))
     assert scene_digest(load_llff_scene(copied, 1, 3)) == digest
+    # The poses as the file gives them: the same for another split (the loaded ones are recentred on the train views).
+    assert scene_digest(load_llff_scene(copied, 1, 2)) == digest
+    # A format that does not give its files' cameras: the loaded ones, which the split moves.
+    loaded = dataclasses.replace(scene, file_cameras=None)
+    assert scene_digest(loaded) != digest
+    assert scene_digest(loaded) == scene_digest(dataclasses.replace(load_llff_scene(copied, 1, 3), file_cameras=None))
+    assert scene_digest(loaded) != scene_digest(dataclasses.replace(load_llff_scene(copied, 1, 2), file_cameras=None))
     poses = np.load(copied / "poses_bounds.npy")
     poses[4, 3] += 0.05  # frame 4's camera moved along x
     np.save(copied / "poses_bounds.npy", poses)

@@ -12,12 +12,14 @@ RealEstate-10K: the reference for n views is the dense NeRF trained with `--data
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import torch
 
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.reference_depth import export_reference_depth
 from simplenerf.run.cli import load_for_tool
+from simplenerf.run.lock import lock_output
 
 
 def build_parser() -> CommandParser:
@@ -33,6 +35,7 @@ def build_parser() -> CommandParser:
 def main(argv: Sequence[str]) -> None:
     own, overrides = split_overrides(argv)
     args = build_parser().parse_args(own)
+    lock_output(Path(args.out))  # an output inside a run folder: not while a fit or test writes that run
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt_path, device=args.device)
     dm, model = cli.datamodule, cli.model
     paths = export_reference_depth(model.nerf, dm.scene, dm.near, model.hparams.chunk, args.out)

@@ -18,6 +18,7 @@ import torch
 
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.run.cli import load_for_tool
+from simplenerf.run.lock import lock_output
 from simplenerf.viz.export import export_geometry
 
 
@@ -47,6 +48,7 @@ def main(argv: Sequence[str]) -> None:
     indices = scene.split.train if args.views == "train" else list(range(len(scene.views)))
     max_depth = None if args.far_factor <= 0 else [args.far_factor * float(scene.bounds[i, 1]) for i in indices]
     out = Path(args.out) if args.out else Path(cli.trainer.default_root_dir) / "geometry"
+    lock_output(out)  # not while a fit or test writes that run
     summary = export_geometry(
         model.nerf, scene.views.subset(indices), dm.near, model.hparams.chunk, out,
         min_accumulation=args.min_accumulation, max_depth=max_depth, stride=args.stride, scale=float(scene.scale),

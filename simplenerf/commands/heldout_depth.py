@@ -20,6 +20,7 @@ from pathlib import Path
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.heldout_depth import heldout_depth_error, heldout_observations
 from simplenerf.run.cli import load_for_tool
+from simplenerf.run.lock import lock_output
 
 
 def build_parser() -> CommandParser:
@@ -35,6 +36,8 @@ def build_parser() -> CommandParser:
 def main(argv: Sequence[str]) -> None:
     own, overrides = split_overrides(argv)
     args = build_parser().parse_args(own)
+    if args.out:
+        lock_output(Path(args.out))  # e.g. <run>/heldout_depth.json: not while a fit or test writes that run
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt_path)
     dm, model = cli.datamodule, cli.model
     observations = heldout_observations(dm.scene, args.cache, str(dm.scene.source.resolve()))

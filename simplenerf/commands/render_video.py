@@ -7,8 +7,8 @@ Paths: `spiral` (LLFF: 120 frames, 2 rotations around the train views) or `recor
 own cameras), or `--trajectory FILE`, a camera path exported from `simplenerf view` (its poses, size and fps).
 Default: the scene's `camera_path` (LLFF: `spiral`, RealEstate-10K: `recorded`). The CLI's options (`simplenerf
 fit`'s: `--data.*`, `--model.*`, ...) are overrides of the config. Writes <trainer.default_root_dir>/video_<path>.mp4
-unless --out. The depth colour range used is printed; give it to another model's video with --depth_range to compare
-the two.
+unless --out (not while a fit or test holds that run folder: docs/running.md). The depth colour range used is
+printed; give it to another model's video with --depth_range to compare the two.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import torch
 
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.run.cli import load_for_tool
+from simplenerf.run.lock import lock_output
 from simplenerf.viz.camera_path import read_camera_path
 from simplenerf.viz.video import render_camera_path_video, render_scene_video
 
@@ -49,6 +50,7 @@ def main(argv: Sequence[str]) -> None:
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt_path, device=args.device)
     if path is not None:
         out = args.out or Path(cli.trainer.default_root_dir) / f"video_{Path(args.trajectory).stem}.mp4"
+        lock_output(Path(out))  # not while a fit or test writes that run
         written, n, width, height, (closest, farthest) = render_camera_path_video(
             cli.model, cli.datamodule, path, out, args.scale,
             tuple(args.depth_range) if args.depth_range else None)
@@ -57,6 +59,7 @@ def main(argv: Sequence[str]) -> None:
         return
     kind = args.path or cli.datamodule.scene.camera_path
     out = args.out or Path(cli.trainer.default_root_dir) / f"video_{kind}.mp4"
+    lock_output(Path(out))
     written, n, width, height, kind, (closest, farthest) = render_scene_video(
         cli.model, cli.datamodule, out, kind, args.frames, args.rotations, args.scale, args.fps,
         tuple(args.depth_range) if args.depth_range else None,

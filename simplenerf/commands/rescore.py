@@ -23,6 +23,7 @@ from simplenerf.evaluation.rescore import comparison_table, find_test_folder, re
 from simplenerf.evaluation.visibility import MIN_VIEWS
 from simplenerf.metrics.lpips import LPIPS
 from simplenerf.run.cli import load_for_tool
+from simplenerf.run.lock import lock_output
 
 # Keys of a `test` config that describe that run, not the model or data, and that a config without subcommand rejects.
 RUN_ONLY_KEYS = ("ckpt_path", "verbose", "weights_only")
@@ -44,6 +45,7 @@ def main(argv: Sequence[str]) -> None:
     args = build_parser().parse_args(own)
     folder = find_test_folder(args.run)
     out = args.out or folder / "rescored"
+    lock_output(out)  # not while a fit or test writes that run
     configs = args.config or [str(_without_run_keys(folder / "config.yaml", out))]
     cli = load_for_tool(configs, overrides)
     lpips_net = None if args.no_lpips else LPIPS.from_weights(args.lpips_weights)

@@ -21,6 +21,7 @@ from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.evaluator import export_visibility_masks
 from simplenerf.evaluation.visibility import MIN_VIEWS
 from simplenerf.run.cli import load_for_tool
+from simplenerf.run.lock import lock_output
 
 
 def build_parser() -> CommandParser:
@@ -38,6 +39,7 @@ def main(argv: Sequence[str]) -> None:
     cli = load_for_tool(args.config, overrides)
     dm = cli.datamodule
     out = Path(args.out or Path(cli.trainer.default_root_dir) / "visibility")
+    lock_output(out)  # not while a fit or test writes that run
     fractions = export_visibility_masks(dm.scene, out, args.min_views)
     print(f"visibility masks of {len(fractions)} test frames (train frames {dm.scene.split.train}) in {out}:")
     for name, fraction in fractions.items():

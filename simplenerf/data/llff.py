@@ -203,7 +203,8 @@ def load_llff_scene(
     elif depth_dir.is_dir():
         depths = read_reference_depth(depth_dir, names, height, width)
     views = make_views(images, intrinsics, c2w, names, depths, scale)
-    return Scene(views=views, split=split, scale=scale, bounds=bounds * scale, source=scene_dir)
+    return Scene(views=views, split=split, scale=scale, bounds=bounds * scale, source=scene_dir,
+                 file_cameras=np.asarray(poses_bounds))
 
 
 def subset(views: Views, indices: list[int]) -> Views:

@@ -165,7 +165,8 @@ def load_realestate_scene(
         depths = read_reference_depth(reference_depth_dir, timestamps, height, width)
     views = make_views(images, pixel_intrinsics(normalised, height, width), c2w, timestamps, depths, scale)
     bounds = np.tile(np.array(BOUNDS) * scale, (clip_length, 1))
-    return Scene(views=views, split=split, scale=scale, bounds=bounds, source=scene_dir, camera_path="recorded")
+    return Scene(views=views, split=split, scale=scale, bounds=bounds, source=scene_dir, camera_path="recorded",
+                 file_cameras=np.concatenate([np.asarray(normalised), np.asarray(w2c).reshape(clip_length, -1)], 1))
 
 
 class RealEstateDataModule(SceneDataModule):

@@ -57,6 +57,9 @@ class Scene:
     bounds: np.ndarray  # [N, 2] near/far per frame, scene units
     source: Path  # the folder the scene was read from (its name names the scene in results)
     camera_path: TrajectoryKind = "spiral"  # the format's video path: LLFF's spiral, or a clip's own ("recorded")
+    file_cameras: np.ndarray | None = None
+    """The frames' cameras as the scene's files give them (before scaling and recentring on the train views): what
+    identifies the scene's poses whatever the split (`run.resume.scene_digest`); None: not given by the format."""
 
     def trajectory(
         self, kind: TrajectoryKind | None = None, n_frames: int = 120, n_rotations: float = 2

@@ -30,7 +30,7 @@ from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveCon
 from lightning.pytorch.utilities import rank_zero_only
 
 from simplenerf.data.scene import SceneDataModule
-from simplenerf.errors import CheckpointError, DataError, SimpleNeRFError, Stopped, TrainingDiverged, absent
+from simplenerf.errors import DataError, SimpleNeRFError, Stopped, TrainingDiverged, absent
 from simplenerf.evaluation.evaluator import Evaluator
 from simplenerf.method.module import SimpleNeRF
 from simplenerf.metrics.lpips import LPIPSWeightsNotFound
@@ -63,14 +63,7 @@ from simplenerf.run.console import PROG, HeldLogs, parser_error_line
 from simplenerf.run.lock import command_line, lock_run_folder, release_run_folder
 from simplenerf.run.loggers import WandbLogger
 from simplenerf.run.memory import reuse_freed_memory
-from simplenerf.run.resume import (
-    TEST_KEYS,
-    RunRecord,
-    describe_checkpoint,
-    recorded_settings,
-    run_settings,
-    setting_changes,
-)
+from simplenerf.run.resume import RunRecord, check_run_settings, run_settings
 
 DESCRIPTION = (
     "SimpleNeRF (SIGGRAPH Asia 2023): Neural Radiance Fields from 2 to 4 photos, regularised by simpler augmented "
@@ -298,8 +291,8 @@ class SimpleNeRFCLI(LightningCLI):
         return Stopped(f"{how} before it finished: no results were written (earlier results are kept)", signum)
 
     def check_settings(self, subcommand: str, config: Any) -> None:
-        """A resume continues the run it resumes: its data and model settings must be the checkpoint's (`resume`);
-        `test` must score the scene and train views the checkpoint trained on. Records the settings for `fit`."""
+        """A resume continues the run it resumes, and `test` scores the scene and train views the checkpoint trained
+        on (`resume.check_run_settings`). Records the settings for `fit`."""
         record = next((c for c in self.trainer.callbacks if isinstance(c, RunRecord)), None)
         current = run_settings(self.config[subcommand], self.datamodule)
         if record is not None and subcommand == "fit":
@@ -307,23 +300,9 @@ class SimpleNeRFCLI(LightningCLI):
         ckpt = config.get("ckpt_path")
         if subcommand not in ("fit", "test") or ckpt is None or not Path(str(ckpt)).is_file():
             return
-        checkpoint = read_checkpoint(Path(ckpt))
-        recorded = recorded_settings(checkpoint)
-        if recorded is None:
-            return  # written before runs recorded their settings
-        allowed = tuple(config.get("allow_changes") or ())
         classes = {"model": type(self.model), "data": type(self.datamodule)}
-        changes = setting_changes(recorded, current, TEST_KEYS if subcommand == "test" else None, allowed, classes)
-        if not changes:
-            return
-        what = "resume" if subcommand == "fit" else "test"
-        listed = "; ".join(changes)
-        keys = ", ".join(change.split(":")[0] for change in changes)
-        raise CheckpointError(
-            f"this {what} differs from the run of checkpoint {describe_checkpoint(ckpt, checkpoint)} in {listed}; "
-            f"use the run's settings (its config.yaml), start a new run in another folder, or accept the change with "
-            f"--allow_changes [{keys}]"
-        )
+        check_run_settings(subcommand, Path(ckpt), read_checkpoint(Path(ckpt)), current,
+                           tuple(config.get("allow_changes") or ()), classes)
 
 
 def trainer_defaults() -> dict:

@@ -8,7 +8,9 @@ a second `fit` or `test` started into the same folder.
 The lock is taken before anything in the folder is read, moved or deleted (the checkpoint a command starts from, the
 checkpoints `fit --overwrite true` deletes, earlier test results): a second command into a busy folder changes
 nothing there. A command that created the folder itself and then stops on bad input removes it again
-(`release_run_folder`), so that a refused command leaves no run folder behind.
+(`release_run_folder`), so that a refused command leaves no run folder behind. The tools that write into a trained
+run (`render-video`, `export-geometry`, `visibility-masks`, ...) take the lock of the run folder their output lies in
+(`lock_output`).
 """
 
 from __future__ import annotations
@@ -39,8 +41,9 @@ def holder_description(text: str) -> str:
         return "a process that left no description"
 
 
-def lock_run_folder(folder: Path, command: str) -> None:
-    """Takes the lock of run folder `folder` (created if needed) for this process, until it exits.
+def lock_run_folder(folder: Path, command: str, instead: str = "use another --trainer.default_root_dir") -> None:
+    """Takes the lock of run folder `folder` (created if needed) for this process, until it exits. `instead`: the
+    other choice the error line offers.
 
     Raises:
         RunFolderError: another live process holds it (the line names it: pid, host, command), or the folder cannot
@@ -68,8 +71,7 @@ def lock_run_folder(folder: Path, command: str) -> None:
             holder = holder_description(os.pread(fd, 65536, 0).decode(errors="replace"))
             os.close(fd)
             raise RunFolderError(
-                f"the run folder {folder} is in use by {holder}; wait for it to finish, or use another "
-                "--trainer.default_root_dir"
+                f"the run folder {folder} is in use by {holder}; wait for it to finish, or {instead}"
             ) from None
         try:  # the file locked must still be the one at `path` (a refused command may have just removed it)
             if os.stat(path).st_ino == os.fstat(fd).st_ino:
@@ -109,6 +111,30 @@ def release_run_folder(folder: Path) -> None:
             return
         if path == outermost:
             return
+
+
+def run_folder_of(path: Path) -> Path | None:
+    """The run folder that `path` (a file or folder, existing or not) is or lies in: the nearest of it and its
+    parents that holds a run's lock file, or `checkpoints/` beside the `config.yaml` of a fit; None if there is none
+    (an output outside any run)."""
+    path = Path(path).absolute()
+    for folder in (path, *path.parents):
+        if (folder / LOCK_NAME).is_file() or ((folder / "checkpoints").is_dir() and (folder / "config.yaml").is_file()):
+            return folder
+    return None
+
+
+def lock_output(out: Path, option: str = "--out") -> None:
+    """Takes the lock of the run folder that the output `out` of a tool lies in (`run_folder_of`), if any, before the
+    tool writes it: a tool refuses to write into a run that a fit or test is writing (the one-line "in use" error,
+    which offers another `option`), and a fit into a folder a tool is writing waits its turn likewise.
+
+    Raises:
+        RunFolderError: another live process holds the lock.
+    """
+    folder = run_folder_of(out)
+    if folder is not None:
+        lock_run_folder(folder, command_line(), instead=f"write elsewhere with {option}")
 
 
 def command_line() -> str:

@@ -5,7 +5,8 @@ needs besides Lightning's own state (weights, optimiser, LR schedule, loop count
   again before the first step after the resume (Lightning's `_collect_rng_states` / `_set_rng_states`);
 - the run's data and model settings (`run_settings`): a resume whose settings differ from the run's stops with one
   line listing the differences (`setting_changes`), unless each is allowed with `--allow_changes`; `test` checks
-  that it scores the scene (and train views) the checkpoint trained on.
+  that it scores the scene (and train views) the checkpoint trained on (`check_run_settings`). The scene is the same
+  scene by its content (`scene_digest`), wherever its folder is now (`scene_moved`).
 
 The random-ray order continues too: `data.datasets.RandomRays` skips the batches the run has already drawn
 (`SceneDataModule.train_dataloader` reads the resumed step). The loss-weight schedule is a function of the step
@@ -14,9 +15,11 @@ The random-ray order continues too: `data.datasets.RandomRays` skips the batches
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import inspect
 import json
+import sys
 import typing
 from pathlib import Path
 from typing import Any
@@ -25,18 +28,23 @@ import lightning as L
 import numpy as np
 import torch
 from lightning.fabric.utilities.seed import _collect_rng_states, _set_rng_states
+from lightning.pytorch.utilities import rank_zero_only
 
-from simplenerf.data.scene import SceneDataModule
+from simplenerf.data.scene import Scene, SceneDataModule
+from simplenerf.errors import CheckpointError
 
 RECORD_KEY = "simplenerf_run"
 
 # Data settings that do not change what a run trains on: where files are found or cached (the scene itself is
-# compared as `scene`, resolved), worker processes, and evaluation-only inputs.
+# compared by its content, `scene_digest`, and by its folder only in a run recorded before the digest), worker
+# processes, and evaluation-only inputs.
 IGNORED_DATA = ("root", "scene_dir", "sparse_depth_cache", "num_workers", "reference_depth_dir")
 # Model settings that change memory use, not results (up to float rounding).
 IGNORED_MODEL = ("chunk", "rays_per_backward")
+# The setting that identifies a scene by its content (`scene_digest`).
+DIGEST_KEY = "scene_digest"
 # What `test` checks: the scored scene and its split are the trained ones.
-TEST_KEYS = ("scene", "train_frames", "data_class")
+TEST_KEYS = ("scene", DIGEST_KEY, "train_frames", "data_class")
 
 
 # Modules whose classes moved (issue 37: the run machinery into simplenerf.run, the LightningModule and its optimiser
@@ -72,11 +80,30 @@ def _plain(value: Any) -> Any:
     return json.loads(json.dumps(value, default=str))
 
 
+def scene_digest(scene: Scene) -> str:
+    """A scene's content as a resume compares it: the first 16 hex digits of the SHA-256 of its frames' image names
+    and cameras as its files give them (`Scene.file_cameras`: LLFF's poses_bounds.npy, a RealEstate-10K clip's
+    lines), so the same whatever the split and on any machine. The same scene in another folder (moved or copied)
+    has the same digest; other poses or other images (names) do not. Pixels are not read again: a scene whose image
+    files were replaced under the same names is not told apart. A format that does not give `file_cameras`: the
+    loaded cameras (scaled and recentred on the train views) and bounds, rounded to 5 decimals."""
+    digest = hashlib.sha256(json.dumps([str(name) for name in scene.views.names]).encode())
+    if scene.file_cameras is not None:
+        arrays = [np.asarray(scene.file_cameras, dtype=np.float64)]
+    else:
+        loaded = (scene.views.c2w, scene.views.intrinsics, scene.bounds)
+        arrays = [np.round(np.asarray(a.detach().cpu() if isinstance(a, torch.Tensor) else a, dtype=np.float64), 5)
+                  + 0.0 for a in loaded]  # + 0.0: no -0.0, whose bytes differ from 0.0's
+    for array in arrays:
+        digest.update(str(array.shape).encode() + np.ascontiguousarray(array).tobytes())
+    return digest.hexdigest()[:16]
+
+
 def run_settings(config: Any, datamodule: Any) -> dict[str, Any]:
     """What identifies a run's training data and model: the data module's class, its arguments (except
-    `IGNORED_DATA`), the scene it reads (`cache_key()`: the resolved folder), its train frames and size, and the
-    model's arguments (except `IGNORED_MODEL`). `config` is the subcommand's parsed config (a jsonargparse Namespace
-    or a dict)."""
+    `IGNORED_DATA`), the scene it reads (`cache_key()`: the resolved folder, and `scene_digest`: its content), its
+    train frames and size, and the model's arguments (except `IGNORED_MODEL`). `config` is the subcommand's parsed
+    config (a jsonargparse Namespace or a dict)."""
     config = config.as_dict() if hasattr(config, "as_dict") else dict(config)  # jsonargparse Namespace or dict
     data = config.get("data") or {}
     init_args = dict(data.get("init_args") or {}) if isinstance(data, dict) else {}
@@ -88,6 +115,7 @@ def run_settings(config: Any, datamodule: Any) -> dict[str, Any]:
     if isinstance(datamodule, SceneDataModule) and datamodule.scene is not None:
         scene = datamodule.scene
         settings["scene"] = datamodule.cache_key()
+        settings[DIGEST_KEY] = scene_digest(scene)
         settings["train_frames"] = list(scene.split.train)
         settings["size"] = [int(scene.views.height), int(scene.views.width)]
     return _plain(settings)
@@ -192,6 +220,53 @@ def setting_changes(recorded: dict[str, Any], current: dict[str, Any], keys: tup
             continue
         changes.append(f"{key}: {_short(old.get(key, '(unset)'))} -> {_short(new.get(key, '(unset)'))}")
     return changes
+
+
+def scene_moved(recorded: dict[str, Any], current: dict[str, Any]) -> tuple[dict, dict, str | None]:
+    """(recorded, current) as `setting_changes` compares them, and the folder the run's scene was read from where it
+    is now elsewhere (else None). A scene is compared by its content: where both settings have its `scene_digest`
+    and it is the same, the folder it is read from (`scene.scene`) is not compared (the scene was moved or copied).
+    A run recorded before the digest (no `scene_digest`) compares the folder, as it did."""
+    if DIGEST_KEY not in recorded:
+        return recorded, {k: v for k, v in current.items() if k != DIGEST_KEY}, None
+    old, new = recorded.get("scene"), current.get("scene")
+    if recorded[DIGEST_KEY] != current.get(DIGEST_KEY) or not isinstance(old, dict) or not isinstance(new, dict):
+        return recorded, current, None
+    folder = old.get("scene")
+    if folder == new.get("scene"):
+        return recorded, current, None
+    return {**recorded, "scene": {**old, "scene": new.get("scene")}}, current, folder
+
+
+def check_run_settings(subcommand: str, checkpoint_path: Path, checkpoint: dict, current: dict[str, Any],
+                       allowed: tuple[str, ...], classes: dict[str, type]) -> None:
+    """A `fit` from `checkpoint` (a resume) continues its run: its data and model settings `current` must be those
+    the checkpoint recorded; a `test` must score the scene and train views it trained on (`TEST_KEYS`). Differences
+    in `allowed` (`--allow_changes`) pass (`setting_changes`); a scene moved or copied to another folder is the same
+    scene (`scene_moved`), said in one line on stderr.
+
+    Raises:
+        CheckpointError: the settings differ; the line lists each difference, `key: recorded -> current`.
+    """
+    recorded = recorded_settings(checkpoint)
+    if recorded is None:
+        return  # written before runs recorded their settings
+    recorded, current, moved_from = scene_moved(recorded, current)
+    keys = TEST_KEYS if subcommand == "test" else None
+    changes = setting_changes(recorded, current, keys, allowed, classes)
+    what = "resume" if subcommand == "fit" else "test"
+    if changes:
+        listed = "; ".join(changes)
+        if any(change.startswith(DIGEST_KEY + ":") for change in changes):
+            listed += " (the scene's image names or poses are not those the run trained on)"
+        raise CheckpointError(
+            f"this {what} differs from the run of checkpoint {describe_checkpoint(checkpoint_path, checkpoint)} in "
+            f"{listed}; use the run's settings (its config.yaml), start a new run in another folder, or accept the "
+            f"change with --allow_changes [{', '.join(change.split(':')[0] for change in changes)}]"
+        )
+    if moved_from is not None and rank_zero_only.rank == 0:
+        print(f"simplenerf: scene folder moved: {moved_from} -> {current['scene']['scene']} (the same image names and "
+              f"poses); {'resuming' if subcommand == 'fit' else 'testing'} the run there", file=sys.stderr, flush=True)
 
 
 def rng_state() -> dict[str, Any]:

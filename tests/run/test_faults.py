@@ -154,6 +154,35 @@ def test_a_lock_left_by_a_killed_process_is_taken_over(tmp_path):
     assert json.loads((tmp_path / LOCK_NAME).read_text())["command"] == "second"
 
 
+def test_tools_do_not_write_into_a_run_in_use(resumed, tmp_path):
+    """render-video, export-geometry and visibility-masks write into the run folder by default: not while another
+    process holds its lock (a fit, a test), and nothing of theirs is written there."""
+    run_dir = tmp_path / "run"
+    shutil.copytree(resumed / "run" / "checkpoints", run_dir / "checkpoints")
+    shutil.copyfile(resumed / "run" / "config.yaml", run_dir / "config.yaml")  # read where it is: tmp_path/run
+    code = (f"from simplenerf.run.lock import lock_run_folder; lock_run_folder({str(run_dir)!r}, 'simplenerf fit'); "
+            "print('locked', flush=True); import time; time.sleep(600)")
+    config, ckpt = ["--config", str(run_dir / "config.yaml")], ["--ckpt", str(run_dir / "checkpoints" / "last.ckpt")]
+    holder = subprocess.Popen([sys.executable, "-c", code], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        before = sorted(p.name for p in run_dir.iterdir())
+        for tool in (["render-video", *config, *ckpt, "--frames", "2", "--scale", "0.25"],
+                     ["export-geometry", *config, *ckpt], ["visibility-masks", *config]):
+            proc = run(*tool, check=False)
+            assert proc.returncode == 2, proc.stderr[-2000:]
+            line = proc.stderr.strip().splitlines()[-1]
+            assert line.startswith(f"{ERROR}the run folder {run_dir} is in use by pid {holder.pid} on "), line
+            assert line.endswith(": simplenerf fit; wait for it to finish, or write elsewhere with --out"), line
+            assert "Traceback" not in proc.stderr
+        assert sorted(p.name for p in run_dir.iterdir()) == before
+    finally:
+        holder.kill()
+        holder.wait()
+    run("visibility-masks", *config)  # the lock was the only obstacle
+    assert (run_dir / "visibility").is_dir()
+
+
 def test_a_stopped_test_leaves_no_partial_results(resumed, tmp_path):
     """SIGTERM after the first of 3 test frames, while the test works on (120 s, as a frame on a slow CPU): it stops
     within seconds, exit status 143, earlier results kept, no test.partial."""
@@ -236,6 +265,49 @@ def test_a_copied_runs_config_tests_the_copy(resumed, tmp_path):
             f"where the file is, {copy}") in proc.stderr.splitlines()
     assert json.loads((copy / "test" / "summary.json").read_text())["checkpoint"].startswith(str(copy))
     assert sorted(p.name for p in (resumed / "run").iterdir()) == before  # the original is not touched
+
+
+def test_a_resume_compares_the_scene_by_its_content_not_its_folder(resumed, tmp_path):
+    """The run's scene copied to another folder resumes, said in one line; other poses there stop the resume; a
+    checkpoint recorded before the scene's digest compares the folder, as it did."""
+    from simplenerf.run.resume import RECORD_KEY
+
+    scene = "seed0_96x128_20"
+    last = tmp_path / "run" / "checkpoints" / "last.ckpt"
+    shutil.copytree(resumed / "run" / "checkpoints", last.parent)
+    shutil.copytree(resumed / "data" / scene, tmp_path / "data" / scene)  # run_args(tmp_path) reads tmp_path/data
+    # | the scene in another folder | resumed, one line naming both folders |
+    proc = run("fit", *run_args(tmp_path), "--trainer.max_steps", "9", "--ckpt_path", "last")
+    assert (f"simplenerf: scene folder moved: {resumed / 'data' / scene} -> {tmp_path / 'data' / scene} (the same "
+            "image names and poses); resuming the run there") in proc.stderr.splitlines()
+    assert last_step(last) == 9
+    # | a checkpoint from before the digest | the folder is compared: another folder stops, the same resumes |
+    checkpoint = torch.load(last, map_location="cpu", weights_only=False)
+    digest = checkpoint[RECORD_KEY]["settings"].pop("scene_digest")
+    torch.save(checkpoint, last)
+    args = [a.replace(str(tmp_path / "data"), str(resumed / "data")) for a in run_args(tmp_path)]
+    proc = run("fit", *args, "--trainer.max_steps", "9", "--ckpt_path", "last", check=False)
+    assert proc.returncode == 2
+    [line] = proc.stderr.strip().splitlines()
+    assert line.startswith(f"{ERROR}this resume differs from the run of checkpoint {last} (step 9) in scene.scene: "
+                           f"{tmp_path / 'data' / scene} -> {resumed / 'data' / scene}; use the run's settings ")
+    proc = run("fit", *run_args(tmp_path), "--trainer.max_steps", "9", "--ckpt_path", "last")
+    assert "scene folder moved" not in proc.stderr and last_step(last) == 9
+    # | other poses in the same folder | stopped, the line names the scene's content |
+    torch.save(checkpoint | {RECORD_KEY: {**checkpoint[RECORD_KEY], "settings": {
+        **checkpoint[RECORD_KEY]["settings"], "scene_digest": digest}}}, last)  # as it was written
+    poses = np.load(tmp_path / "data" / scene / "poses_bounds.npy")
+    poses[1, 3] += 0.05
+    np.save(tmp_path / "data" / scene / "poses_bounds.npy", poses)
+    proc = run("fit", *run_args(tmp_path), "--trainer.max_steps", "10", "--ckpt_path", "last", check=False)
+    assert proc.returncode == 2
+    [line] = proc.stderr.strip().splitlines()
+    assert line.startswith(f"{ERROR}this resume differs from the run of checkpoint {last} (step 9) in scene_digest: "
+                           f"{digest} -> ")
+    assert line.endswith(" (the scene's image names or poses are not those the run trained on); use the run's "
+                         "settings (its config.yaml), start a new run in another folder, or accept the change with "
+                         "--allow_changes [scene_digest]")
+    assert last_step(last) == 9
 
 
 # ----------------------------------------------------------------------------------------------------------------

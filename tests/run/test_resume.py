@@ -3,17 +3,26 @@ the code since it was trained) passes at the current code's default and nowhere 
 one-line errors are in tests/run/test_faults.py."""
 
 import copy
+import dataclasses
+import shutil
+from pathlib import Path
 
+import numpy as np
+import pytest
 import yaml
 
+from simplenerf.data.llff import load_llff_scene
 from simplenerf.data.synthetic import SyntheticDataModule
+from simplenerf.errors import CheckpointError
 from simplenerf.method.module import SimpleNeRF
 from simplenerf.run.config_files import without_subcommand_keys
 from simplenerf.run.resume import (
     NO_DEFAULT,
     RECORD_KEY,
+    check_run_settings,
     current_class_paths,
     recorded_settings,
+    scene_digest,
     setting_changes,
     setting_default,
 )
@@ -132,3 +141,65 @@ def test_a_run_from_before_the_move_reads_its_class_paths_as_the_current_ones(tm
     assert yaml.safe_load(given) == current_class_paths(old)
     file.write_text(yaml.safe_dump(current_class_paths(old)))
     assert without_subcommand_keys(["--config", str(file)], ()) == ["--config", str(file)]
+
+
+def test_a_scene_is_its_content_wherever_its_folder_is(synthetic_scene, tmp_path):
+    """The digest is of the image names and poses: a copy elsewhere has the same, other poses or names do not."""
+    scene = load_llff_scene(synthetic_scene, 1, 3)
+    digest = scene_digest(scene)
+    assert len(digest) == 16 and int(digest, 16) >= 0
+    copied = Path(shutil.copytree(synthetic_scene, tmp_path / "copied"))
+    assert scene_digest(load_llff_scene(copied, 1, 3)) == digest
+    # The poses as the file gives them: the same for another split (the loaded ones are recentred on the train views).
+    assert scene_digest(load_llff_scene(copied, 1, 2)) == digest
+    # A format that does not give its files' cameras: the loaded ones, which the split moves.
+    loaded = dataclasses.replace(scene, file_cameras=None)
+    assert scene_digest(loaded) != digest
+    assert scene_digest(loaded) == scene_digest(dataclasses.replace(load_llff_scene(copied, 1, 3), file_cameras=None))
+    assert scene_digest(loaded) != scene_digest(dataclasses.replace(load_llff_scene(copied, 1, 2), file_cameras=None))
+    poses = np.load(copied / "poses_bounds.npy")
+    poses[4, 3] += 0.05  # frame 4's camera moved along x
+    np.save(copied / "poses_bounds.npy", poses)
+    assert scene_digest(load_llff_scene(copied, 1, 3)) != digest
+    renamed = Path(shutil.copytree(synthetic_scene, tmp_path / "renamed", ignore=shutil.ignore_patterns("depths")))
+    (renamed / "images" / "019.png").rename(renamed / "images" / "020.png")
+    assert scene_digest(load_llff_scene(renamed, 1, 3)) != digest
+
+
+def scene_settings(folder: str, digest: str | None) -> dict:
+    """Settings as `run_settings` records them for a scene in `folder` (`digest`: None, as recorded before it)."""
+    settings = {"data_class": "simplenerf.data.llff.LLFFDataModule", "data": {"n_views": 3},
+                "scene": {"scene": folder, "factor": 4}, "train_frames": [0, 9, 18], "size": [48, 64]}
+    return settings if digest is None else {**settings, "scene_digest": digest}
+
+
+def check(recorded: dict, current: dict, subcommand: str = "fit", allowed: tuple[str, ...] = ()) -> None:
+    checkpoint = {RECORD_KEY: {"settings": recorded}, "global_step": 8}
+    check_run_settings(subcommand, Path("run/checkpoints/last.ckpt"), checkpoint, current, allowed, CLASSES)
+
+
+def test_a_moved_scene_resumes_and_says_so_other_content_or_an_old_record_of_another_folder_stops(capsys):
+    check(scene_settings("/data/fern", "00aa"), scene_settings("/data/fern", "00aa"))
+    assert capsys.readouterr().err == ""
+    # | the same scene in another folder | one line on stderr, for a resume and for a test |
+    for subcommand, doing in (("fit", "resuming"), ("test", "testing")):
+        check(scene_settings("/data/fern", "00aa"), scene_settings("/scratch/fern", "00aa"), subcommand)
+        assert capsys.readouterr().err == (f"simplenerf: scene folder moved: /data/fern -> /scratch/fern (the same "
+                                           f"image names and poses); {doing} the run there\n")
+    # | other poses or image names, in the same folder or another | a difference, named |
+    refusal = ("this resume differs from the run of checkpoint run/checkpoints/last.ckpt (step 8) in {listed} (the "
+               "scene's image names or poses are not those the run trained on); use the run's settings (its "
+               "config.yaml), start a new run in another folder, or accept the change with --allow_changes [{keys}]")
+    with pytest.raises(CheckpointError) as error:
+        check(scene_settings("/data/fern", "00aa"), scene_settings("/data/fern", "00bb"))
+    assert str(error.value) == refusal.format(listed="scene_digest: 00aa -> 00bb", keys="scene_digest")
+    with pytest.raises(CheckpointError) as error:
+        check(scene_settings("/data/fern", "00aa"), scene_settings("/scratch/fern", "00bb"))
+    assert str(error.value) == refusal.format(listed="scene.scene: /data/fern -> /scratch/fern; scene_digest: 00aa -> "
+                                              "00bb", keys="scene.scene, scene_digest")
+    check(scene_settings("/data/fern", "00aa"), scene_settings("/data/fern", "00bb"), allowed=("scene_digest",))
+    # | a run recorded before the digest | its folder compared as before: the same folder passes, another stops |
+    check(scene_settings("/data/fern", None), scene_settings("/data/fern", "00aa"))
+    with pytest.raises(CheckpointError, match=r" in scene\.scene: /data/fern -> /scratch/fern; use the run's "):
+        check(scene_settings("/data/fern", None), scene_settings("/scratch/fern", "00aa"), "test")
+    assert capsys.readouterr().err == ""

@@ -3,11 +3,11 @@
 # (full-frame and masked PSNR / SSIM / LPIPS) and, on LLFF scenes, the depth error at held-out SfM points
 # (`simplenerf heldout-depth`); then a table per scene of mean ± std over the seeds per model (`simplenerf results`).
 #
-#   benchmarks/quality_grid.sh fern                          # the configs' budget (3000 steps), seed 0, both models
-#   SEEDS="0 1 2" STEPS=400 benchmarks/quality_grid.sh fern horns realestate
-#   VARIANTS=dsnerf OMP_NUM_THREADS=1 SEEDS="0 1 2" STEPS=400 benchmarks/quality_grid.sh fern &   # two streams on
-#   VARIANTS=simplenerf OMP_NUM_THREADS=1 SEEDS="0 1 2" STEPS=400 benchmarks/quality_grid.sh fern & # a 2-core CPU
-#   TABLE_ONLY=1 SEEDS="0 1 2" benchmarks/quality_grid.sh fern horns realestate   # only the table of finished runs
+#   benchmarks/quality/quality_grid.sh fern                          # the configs' budget (3000 steps), seed 0, both models
+#   SEEDS="0 1 2" STEPS=400 benchmarks/quality/quality_grid.sh fern horns realestate
+#   VARIANTS=dsnerf OMP_NUM_THREADS=1 SEEDS="0 1 2" STEPS=400 benchmarks/quality/quality_grid.sh fern &   # two streams on
+#   VARIANTS=simplenerf OMP_NUM_THREADS=1 SEEDS="0 1 2" STEPS=400 benchmarks/quality/quality_grid.sh fern & # a 2-core CPU
+#   TABLE_ONLY=1 SEEDS="0 1 2" benchmarks/quality/quality_grid.sh fern horns realestate   # only the table of finished runs
 #
 # A scene is fern, horns (../shared/data/nerf_llff_data/<name>, images_8), realestate (the RealEstate-10K clip in
 # ../shared/data/realestate10k, 256x256) or the path of a scene folder: an LLFF scene (poses_bounds.npy) or a
@@ -19,7 +19,7 @@
 # losses (<name>_concentration) get CONCENTRATION_WEIGHT (default 0.01) from 20% of the steps. RESUME=1 continues a
 # stopped fit from its last checkpoint instead of starting it over (the fit's own time is then the resumed part's).
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 PYTHON=${PYTHON:-.venv/bin/python}
 RUNS=${RUNS:-runs/grid}
 SEEDS=${SEEDS:-0}

@@ -4,16 +4,16 @@
 # run took 68 minutes on the 2-core CPU in 2026-12, partly shared with other jobs). For each run: fit, test (PSNR / SSIM / LPIPS on the 3 test frames) and the
 # depth error at held-out SfM points (`simplenerf heldout-depth`); then one table of all runs (`simplenerf results`).
 #
-#   benchmarks/fern_cpu.sh                       # all three, one after another
-#   benchmarks/fern_cpu.sh one_way               # one of: bidirectional one_way dsnerf
-#   OMP_NUM_THREADS=1 benchmarks/fern_cpu.sh dsnerf & OMP_NUM_THREADS=1 benchmarks/fern_cpu.sh one_way &
-#   benchmarks/fern_cpu.sh --step 2000 bidirectional one_way dsnerf
+#   benchmarks/quality/fern_cpu.sh                       # all three, one after another
+#   benchmarks/quality/fern_cpu.sh one_way               # one of: bidirectional one_way dsnerf
+#   OMP_NUM_THREADS=1 benchmarks/quality/fern_cpu.sh dsnerf & OMP_NUM_THREADS=1 benchmarks/quality/fern_cpu.sh one_way &
+#   benchmarks/quality/fern_cpu.sh --step 2000 bidirectional one_way dsnerf
 #       # no training: scores the runs' step-2000 checkpoints into runs/cpu/step002000/fern_<variant>/
 #
 # SCENE (default ../shared/data/nerf_llff_data/fern), PYTHON (default .venv/bin/python), RUNS (default runs/cpu) and
 # EXTRA (more CLI overrides, e.g. EXTRA="--trainer.max_steps 10" for a smoke test) can be set.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 PYTHON=${PYTHON:-.venv/bin/python}
 SCENE=${SCENE:-../shared/data/nerf_llff_data/fern}
 RUNS=${RUNS:-runs/cpu}

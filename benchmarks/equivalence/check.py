@@ -107,7 +107,7 @@ def llff_step_layout(repo, work_dir: Path, scene_dir: Path, factor: int, config:
 
 def step_check(args, repo, report: Report, views: int, trajectory: bool) -> None:
     """One training step (and optionally a trajectory) of the release and ours on `args.scene_dir` with `views`."""
-    from benchmarks.equivalence.data import release_config
+    from benchmarks.equivalence.release import release_config
 
     dtype = getattr(torch, args.dtype)
     # Tolerances (docs/equivalence.md explains them): elementwise rtol / atol for outputs and losses; the norm-wise

@@ -34,19 +34,18 @@ from simplenerf.errors import SimpleNeRFError
 def speed():
     """`benchmarks.speed.training_step`, the measurement: it lives in the repository's benchmarks/, not in the
     installed package, and is found beside the package (a checkout, or an editable install) when the working folder
-    is elsewhere. The one import of benchmarks/ by the package (tests/test_layout.py allows this one only)."""
-    module = "benchmarks.speed.training_step"
+    is elsewhere. The package's one import of benchmarks/ (tests/test_layout.py allows this one only)."""
     try:
-        return importlib.import_module(module)
+        return importlib.import_module("benchmarks.speed.training_step")
     except ModuleNotFoundError as e:
-        if e.name not in ("benchmarks", "benchmarks.speed", module):
+        if e.name not in ("benchmarks", "benchmarks.speed", "benchmarks.speed.training_step"):
             raise
     root = Path(__file__).resolve().parents[2]
     if not (root / "benchmarks" / "speed" / "training_step.py").is_file():
         raise SimpleNeRFError(f"benchmark: the repository's benchmarks/speed/training_step.py is not beside the "
                               f"package ({root}); run simplenerf benchmark from a checkout of the repository")
     sys.path.insert(0, str(root))
-    return importlib.import_module(module)
+    return importlib.import_module("benchmarks.speed.training_step")
 
 
 def measurement_parser(doc: str | None, prog: str | None = None) -> CommandParser:

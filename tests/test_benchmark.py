@@ -1,5 +1,6 @@
-"""Speed measurement (benchmarks.speed, `simplenerf benchmark`, benchmarks/): the counting formulas by hand, frame
-cropping, the side-by-side table, and one short run of each measurement through the real CLI."""
+"""Speed measurement (benchmarks.speed.training_step, `simplenerf benchmark`, benchmarks/speed/): the counting
+formulas by hand, frame cropping, the side-by-side table, and one short run of each measurement through the real
+CLI."""
 
 from __future__ import annotations
 
@@ -10,13 +11,13 @@ import pytest
 import torch
 from torch import nn
 
-from benchmarks import gpu_report
-from benchmarks.profile_step import main as profile_main
-from benchmarks.profile_step import matmul_time
-from benchmarks.render import crop_rows
-from benchmarks.render import main as render_main
-from benchmarks.speed import field_evaluations_per_ray, linear_macs, matmul_flop_per_ray
-from benchmarks.summarize import side_by_side_table
+from benchmarks.speed import gpu_report
+from benchmarks.speed.profile_step import main as profile_main
+from benchmarks.speed.profile_step import matmul_time
+from benchmarks.speed.render import crop_rows
+from benchmarks.speed.render import main as render_main
+from benchmarks.speed.summarize import side_by_side_table
+from benchmarks.speed.training_step import field_evaluations_per_ray, linear_macs, matmul_flop_per_ray
 from simplenerf.commands.benchmark import main as benchmark_main
 from simplenerf.commands.benchmark import training_args
 from simplenerf.run import hardware
@@ -132,7 +133,7 @@ def test_train_step_and_render_run_through_the_cli(tmp_path, capsys):
     assert line["gpu"] == (torch.cuda.get_device_name() if torch.cuda.is_available() else None)
     assert f"simplenerf: {cpu.line()}; precision 32-true\n" in printed.err
 
-    # benchmarks/gpu.sh's figures: the measurement's JSON line, found in a step's log and summarised
+    # benchmarks/speed/gpu.sh's figures: the measurement's JSON line, found in a step's log and summarised
     log = tmp_path / "benchmark_fp32.log"
     log.write_text(f"progress on stderr\n{json.dumps(record)}\nmore stderr\n")
     recorded = gpu_report.record(tmp_path / "gpu", "benchmark_fp32", "0", 12.34, from_json=log)

@@ -1,6 +1,6 @@
-"""benchmarks/gpu.sh without a GPU: its dry run (every command, its time limit, nothing written), the one line it
+"""benchmarks/speed/gpu.sh without a GPU: its dry run (every command, its time limit, nothing written), the one line it
 stops with when there is no CUDA device, the fit's overrides through the real CLI, and its figures
-(benchmarks/gpu_report.py) from the JSON lines its steps leave."""
+(benchmarks/speed/gpu_report.py) from the JSON lines its steps leave."""
 
 from __future__ import annotations
 
@@ -13,10 +13,10 @@ import sys
 import pytest
 import torch
 
-from benchmarks import gpu_report
+from benchmarks.speed import gpu_report
 from tests.conftest import REPO
 
-SCRIPT = REPO / "benchmarks" / "gpu.sh"
+SCRIPT = REPO / "benchmarks" / "speed" / "gpu.sh"
 STEPS = ["sfm", "benchmark_fp32", "benchmark_tf32", "benchmark_bf16", "release_equivalence", "fit", "test"]
 
 
@@ -57,7 +57,7 @@ def test_dry_run_prints_every_step_and_writes_nothing(tmp_path):
         assert words[5] == "configs/llff.yaml" and words[-7:] == ["--", *fern]
         assert words[-7 - len(precision):-7] == precision
     equivalence = commands["release_equivalence"][1]
-    assert equivalence[1:3] == ["-m", "benchmarks.release_equivalence"]
+    assert equivalence[1:3] == ["-m", "benchmarks.equivalence.check"]
     assert equivalence[equivalence.index("--device") + 1] == "cuda"
     assert equivalence[equivalence.index("--release-src") + 1] == str(release)
     assert equivalence[equivalence.index("--json") + 1] == str(out / "logs/release_equivalence.json")

@@ -1,12 +1,13 @@
-"""The figures of benchmarks/ that score a run's maps: texture printed into depth (benchmarks.texture_in_depth) on a
-hand-made plane with one edge, and streaks along the image axes (benchmarks.streak_index) on hand-made maps."""
+"""The figures of benchmarks/quality/ that score a run's maps: texture printed into depth
+(benchmarks.quality.texture_in_depth) on a hand-made plane with one edge, and streaks along the image axes
+(benchmarks.quality.streak_index) on hand-made maps."""
 
 import cv2
 import numpy as np
 import pytest
 
-from benchmarks.streak_index import axis_ratio, streak_index
-from benchmarks.texture_in_depth import flat_pixels, score
+from benchmarks.quality.streak_index import axis_ratio, streak_index
+from benchmarks.quality.texture_in_depth import flat_pixels, score
 
 
 def test_flat_pixels_are_those_whose_neighbourhood_is_on_one_plane():
@@ -62,7 +63,7 @@ def test_streak_index_divides_by_the_photos_ratio(tmp_path):
 
 
 def test_blur_calibration_degrades_as_named():
-    from benchmarks.blur_calibration import degraded
+    from benchmarks.quality.blur_calibration import degraded
 
     photo = np.zeros((16, 24, 3), np.uint8)
     photo[:, 10] = 200  # one bright column
@@ -79,7 +80,7 @@ def test_ray_spread_is_zero_for_a_surface_and_about_a_uniform_fogs_std():
 
     import torch
 
-    from benchmarks.view_scores import ray_spread
+    from benchmarks.quality.view_scores import ray_spread
 
     t = torch.linspace(0, 1, 101)[:-1].expand(4, 100)
     surface = torch.zeros(4, 100)

@@ -71,7 +71,7 @@ def test_skip_layer_columns_move_from_input_first_to_input_last():
 
 
 def test_device_option_names_what_this_machine_cannot_give(monkeypatch, capsys):
-    from benchmarks import release_equivalence as check
+    from benchmarks.equivalence import check
 
     assert check.check_device("cpu") == torch.device("cpu")
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)

@@ -64,6 +64,6 @@ timed "video" "$PYTHON" -m simplenerf render-video --config configs/grid/demo.ya
 echo "[demo] total: $((SECONDS - start)) s"
 echo "Test metrics on the synthetic 'objects' scene (3 views, same budget), renders in $RUNS/grid_demo*/test:"
 "$PYTHON" -m simplenerf results SimpleNeRF="$RUNS/grid_demo" DS-NeRF="$RUNS/grid_demo_dsnerf" --scores both --depth
-"$PYTHON" -m benchmarks.demo_picture "$RUNS/grid_demo" "$RUNS/grid_demo_dsnerf" --out docs/images/demo.png
+"$PYTHON" -m benchmarks.quality.demo_picture "$RUNS/grid_demo" "$RUNS/grid_demo_dsnerf" --out docs/images/demo.png
 echo "SimpleNeRF's spiral video ([RGB | depth]): $RUNS/grid_demo/video_spiral.mp4"
 echo "One held-out frame of both models (photo | render | depths | exact depth): docs/images/demo.png"

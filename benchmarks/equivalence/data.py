@@ -39,11 +39,9 @@ import json
 import os
 import sys
 import time
-import types
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import torch
 
 from benchmarks.equivalence.layouts import (
@@ -52,97 +50,21 @@ from benchmarks.equivalence.layouts import (
     build_realestate_layout,
     write_sparse_depth_csvs,
 )
-from benchmarks.equivalence.release import release_device
+from benchmarks.equivalence.rays import ours_rays, pixels, ray_rows, release_rays
+from benchmarks.equivalence.release import release_config, run_release
 from benchmarks.equivalence.report import Report, Row, compare, exact, flag
+from benchmarks.equivalence.sparse_depth import (
+    csv_tables,
+    our_sparse_depth,
+    patched_sparse_depth,
+    sparse_rows,
+    synthetic_observations,
+)
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_RELEASE_GIT = Path("/work/.mirror/NagabhushanSN95+SimpleNeRF/repo")
-DEMOS = {2: "demo1a", 3: "demo1b", 4: "demo1c"}  # the release's published 2 / 3 / 4-view configs
 COMMITTED_RUNS = {("llff", 2): "train1011", ("llff", 3): "train1021", ("llff", 4): "train1031",
                   ("realestate", 2): "train0011", ("realestate", 3): "train0021", ("realestate", 4): "train0031"}
-RAY_RTOL, RAY_ATOL = 1e-5, 1e-5  # float32 rays of magnitude ~1-10: atol covers components that cross zero
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# The release
-
-
-def release_config(repo: ReleaseRepo, kind: str, n_views: int) -> dict:
-    """The release's published training config for `n_views` views (its entry script's demo function), captured
-    by stopping its first `start_training` call, as ../shared/tools/official_timing/driver.py does."""
-    # skvideo is imported by the entry scripts for writing test videos only.
-    sys.modules.setdefault("skvideo", types.ModuleType("skvideo"))
-    sys.modules.setdefault("skvideo.io", types.ModuleType("skvideo.io"))
-    entry = repo.import_module("NerfLlffTrainerTester01" if kind == "llff" else "RealEstateTrainerTester01")
-    captured = {}
-
-    class Captured(Exception):
-        pass
-
-    def capture(configs):
-        captured["configs"] = configs
-        raise Captured
-
-    # `entry` is the release's entry script, patched by name: not every script defines every stage.
-    saved = {k: getattr(entry, k) for k in ("start_training", "start_testing", "start_testing_videos",
-                                            "start_testing_static_videos") if hasattr(entry, k)}
-    entry.start_training = capture
-    for k in saved:
-        if k != "start_training":
-            setattr(entry, k, lambda *a, **kw: None)
-    try:
-        getattr(entry, DEMOS[n_views])()
-    except Captured:
-        pass
-    finally:
-        for k, v in saved.items():
-            setattr(entry, k, v)
-    configs = captured["configs"]
-    configs["device"] = [0]  # CommonUtils01.get_device: cuda:0 if CUDA is available, else the CPU
-    return configs
-
-
-def run_release(repo: ReleaseRepo, configs: dict, data_dir: Path, scene_id: str, make_csvs) -> dict:
-    """The release's loaders and preprocessors for modes train and validation, on scene `scene_id`.
-
-    `make_csvs(train_frame_nums)` writes the sparse-depth CSVs before the train loader reads them.
-    """
-    loader_factory = repo.import_module("data_loaders.DataLoaderFactory")
-    preprocessor_factory = repo.import_module("data_preprocessors.DataPreprocessorFactory")
-    configs["data_loader"]["scene_id"] = scene_id  # as Trainer01.start_training sets it per scene
-    with release_device(torch.device("cpu")):  # the data rows compare on the CPU, also on a CUDA machine
-        return _run_release(loader_factory, preprocessor_factory, configs, data_dir, make_csvs)
-
-
-def _run_release(loader_factory, preprocessor_factory, configs: dict, data_dir: Path, make_csvs) -> dict:
-    train_loader = loader_factory.get_data_loader(configs, data_dir, mode="train")
-    make_csvs(train_loader.get_frame_nums())
-    train = preprocessor_factory.get_data_preprocessor(configs, "train", raw_data_dict=train_loader.load_data())
-    model_configs = train.get_model_configs()
-    val_loader = loader_factory.get_data_loader(configs, data_dir, mode="validation")
-    val = preprocessor_factory.get_data_preprocessor(configs, "validation", raw_data_dict=val_loader.load_data(),
-                                                     model_configs=model_configs)
-    test_frames = loader_factory.get_data_loader(configs, data_dir, mode="test").get_frame_nums()
-    return {"train": train, "val": val, "model_configs": model_configs, "test_frames": test_frames}
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Ours
-
-
-@contextlib.contextmanager
-def patched_sparse_depth(provide):
-    """Our `SceneDataModule.load_sparse_depth` with `provide(key, images, intrinsics, c2w)` in place of the SfM
-    (`simplenerf.data.scene.load_or_compute_sparse_depth`): the rest of our pipeline (pool, weights, batches) runs."""
-    import simplenerf.data.scene as scene_module
-
-    saved = scene_module.load_or_compute_sparse_depth
-    scene_module.load_or_compute_sparse_depth = lambda cache_dir, key, images, intrinsics, c2w, **kw: provide(
-        key, images, intrinsics, c2w)
-    try:
-        yield
-    finally:
-        scene_module.load_or_compute_sparse_depth = saved
 
 
 def our_datamodule(kind: str, scene_dir: Path, n_views: int, factor: int, work_dir: Path):
@@ -159,126 +81,6 @@ def our_datamodule(kind: str, scene_dir: Path, n_views: int, factor: int, work_d
     with contextlib.redirect_stdout(sys.stderr):
         cli = make_cli(args, run=False)
     return cli
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Synthetic sparse depth
-
-
-def synthetic_observations(w2c: np.ndarray, intrinsics: np.ndarray, bounds: np.ndarray, height: int, width: int,
-                           points_per_view: int, rng: np.random.Generator) -> list[dict]:
-    """3D points (file units) and their observations in the train views, as an SfM with fixed poses would give.
-
-    Per view, `points_per_view` points at random sub-pixel positions, depths uniform in disparity within the view's
-    bounds; each is projected into every view (w2c [V, 4, 4] OpenCV, intrinsics [V, 3, 3]). Observations must land
-    inside [0.5, W - 1.5] x [0.5, H - 1.5] in front of the camera, at most one per rounded pixel of a view (the
-    release keeps one depth per pixel); only points seen by at least two views are kept (a triangulated point).
-    Returns one dict per view: x, y, depth (file-unit z-depth), point (id), reprojection_error, weight, and source
-    [P, 4]: the point's generating view (index into the train views), pixel x, y and file-unit z-depth there.
-    """
-    n = len(w2c)
-    points, errors, sources = [], [], []
-    for i in range(n):
-        xy = np.stack([rng.uniform(0.5, width - 1.5, points_per_view), rng.uniform(0.5, height - 1.5, points_per_view)],
-                      axis=-1)
-        z = 1.0 / rng.uniform(1.0 / bounds[i, 1], 1.0 / bounds[i, 0], points_per_view)
-        cam = (np.linalg.inv(intrinsics[i]) @ np.concatenate([xy, np.ones((points_per_view, 1))], -1).T).T * z[:, None]
-        c2w = np.linalg.inv(w2c[i])
-        points.append(cam @ c2w[:3, :3].T + c2w[:3, 3])
-        errors.append(rng.uniform(0.05, 2.0, points_per_view))
-        sources.append(np.concatenate([np.full((points_per_view, 1), i), xy, z[:, None]], -1))
-    points, errors, sources = np.concatenate(points), np.concatenate(errors), np.concatenate(sources)
-    obs = []
-    for j in range(n):
-        cam = points @ w2c[j, :3, :3].T + w2c[j, :3, 3]
-        z = cam[:, 2]
-        pix = cam @ intrinsics[j].T
-        x, y = pix[:, 0] / pix[:, 2], pix[:, 1] / pix[:, 2]
-        inside = (z > 0) & (x >= 0.5) & (x <= width - 1.5) & (y >= 0.5) & (y <= height - 1.5)
-        obs.append({"inside": inside, "x": x, "y": y, "z": z})
-    seen = np.sum([o["inside"] for o in obs], axis=0)
-    keep = seen >= 2
-    kept = []
-    for o in obs:
-        ids = np.where(o["inside"] & keep)[0]
-        pixel = np.round(o["y"][ids]).astype(int) * width + np.round(o["x"][ids]).astype(int)
-        _, first = np.unique(pixel, return_index=True)
-        kept.append(ids[np.sort(first)])
-    # A point that lost an observation to a shared pixel may be left with one view: drop it (no new collisions).
-    counts = np.bincount(np.concatenate(kept), minlength=len(points))
-    weight = 2 * np.exp(-((errors / errors.mean()) ** 2))  # DS-NeRF's weight column (unused by the release's loss)
-    per_view = []
-    for o, ids in zip(obs, kept, strict=True):
-        ids = ids[counts[ids] >= 2]
-        per_view.append({"x": o["x"][ids], "y": o["y"][ids], "depth": o["z"][ids], "point": ids,
-                         "reprojection_error": errors[ids], "weight": weight[ids], "source": sources[ids]})
-    return per_view
-
-
-def csv_tables(per_view: list[dict]) -> list[pd.DataFrame]:
-    return [pd.DataFrame({k: v[k] for k in ("x", "y", "depth", "reprojection_error", "weight")}) for v in per_view]
-
-
-def our_sparse_depth(per_view: list[dict], intrinsics: torch.Tensor, c2w: torch.Tensor, scale: float):
-    """What our SfM (`compute_sparse_depth` + `known_poses.collect`) holds for these points and observations:
-    each observation's keypoint, and the point's z-depth in that view of OUR scene (`geometry.rays.project`). The
-    point is placed in our scene from its generating view: our ray there (`pixel_rays`) at its z-depth times our
-    scale (float64; triangulating instead would amplify float32 camera round-off by depth / baseline, ~1e-4 on the
-    RealEstate-10K clip). Returns `SparseDepth` per view and our projections uv of the points [per view]."""
-    from simplenerf.geometry.rays import pixel_rays, project
-    from simplenerf.sfm.known_poses import SparseDepth
-
-    k64, c64 = intrinsics.double(), c2w.double()
-    out, projections = [], []
-    for view, v in enumerate(per_view):
-        source = torch.from_numpy(v["source"])
-        at = source[:, 0].long()
-        o, d = pixel_rays(k64[at], c64[at], source[:, 1:3])
-        points = o + (source[:, 3] * scale)[:, None] * d
-        uv, z = project(points, k64[view][None], c64[view][None])
-        out.append(SparseDepth(pixels=np.stack([v["x"], v["y"]], -1).astype(np.float32), depth=z.numpy().astype(
-            np.float32), reprojection_error=v["reprojection_error"].astype(np.float32), point_ids=v["point"]))
-        projections.append(uv)
-    return out, projections
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# The rows
-
-
-def _pixels(rng: np.random.Generator, views: int, height: int, width: int, per_view: int) -> np.ndarray:
-    """[views * per_view, 3] (view, u, v) of distinct seeded pixels of each view."""
-    out = []
-    for view in range(views):
-        flat = rng.choice(height * width, size=min(per_view, height * width), replace=False)
-        out.append(np.stack([np.full_like(flat, view), flat % width, flat // width], -1))
-    return np.concatenate(out)
-
-
-def _ours_rays(views, pix: np.ndarray, near: float):
-    uv = torch.from_numpy(pix[:, 1:]).long()
-    view = torch.from_numpy(pix[:, 0]).long()
-    rays = views.rays(view, uv, near)
-    return rays, views.images[view, uv[:, 1], uv[:, 0]]
-
-
-def _release_rays(cache: dict, pix: np.ndarray, height: int, width: int):
-    flat = torch.from_numpy(pix[:, 0] * height * width + pix[:, 2] * width + pix[:, 1]).long()
-    keys = ("rays_o", "rays_d", "rays_o_ndc", "rays_d_ndc", "target_rgb")
-    return {k: cache[k][flat.to(cache[k].device)].cpu() for k in keys}
-
-
-def ray_rows(group: str, what: str, ours, rel: dict, ours_rgb=None, note: str = "") -> list[Row]:
-    """World and NDC origins and directions (and colours) of rays; `note` goes on the first row."""
-    rows = [
-        compare(group, f"{what}: world ray origins", ours.origins, rel["rays_o"], RAY_RTOL, RAY_ATOL, note=note),
-        compare(group, f"{what}: world ray directions", ours.directions, rel["rays_d"], RAY_RTOL, RAY_ATOL),
-        compare(group, f"{what}: NDC ray origins", ours.ndc_origins, rel["rays_o_ndc"], RAY_RTOL, RAY_ATOL),
-        compare(group, f"{what}: NDC ray directions", ours.ndc_directions, rel["rays_d_ndc"], RAY_RTOL, RAY_ATOL),
-    ]
-    if ours_rgb is not None:
-        rows.append(compare(group, f"{what}: pixel colours", ours_rgb, rel["target_rgb"], 0.0, 1e-7))
-    return rows
 
 
 def data_rows(release_src: Path, work_dir: Path, scene_dir: Path, kind: str, n_views: int, factor: int = 4,
@@ -385,20 +187,20 @@ def data_rows(release_src: Path, work_dir: Path, scene_dir: Path, kind: str, n_v
 
     # 3. rays at seeded pixels of every train view, the validation view and one test view
     train_views = dm.train_views
-    pix = _pixels(rng, len(split.train), h, w, pixels_per_view)
-    ours, ours_rgb = _ours_rays(train_views, pix, dm.near)
-    rel = _release_rays(train_pre.preprocessed_data_dict["nerf_data"], pix, h, w)
+    pix = pixels(rng, len(split.train), h, w, pixels_per_view)
+    ours, ours_rgb = ours_rays(train_views, pix, dm.near)
+    rel = release_rays(train_pre.preprocessed_data_dict["nerf_data"], pix, h, w)
     rows.extend(ray_rows(group, f"train rays ({len(split.train)} x {pixels_per_view} px)", ours, rel, ours_rgb))
     # Our real training batch (RandomRays, seeded): its rays and colours at its pixels vs the release's cache there.
     random = next(iter(dm.train_dataloader().dataset)).random
     pix = np.stack([random.view.numpy(), random.uv[:, 0].numpy(), random.uv[:, 1].numpy()], -1)
-    rel = _release_rays(train_pre.preprocessed_data_dict["nerf_data"], pix, h, w)
+    rel = release_rays(train_pre.preprocessed_data_dict["nerf_data"], pix, h, w)
     rows.extend(ray_rows(group, f"our first training batch ({len(random)} random rays)", random.rays, rel,
                          random.rgb, note="RandomRays: pixels by our seeded shuffle, looked up in the release's cache"))
     val_views = views.subset(rel_val.tolist())
-    pix = _pixels(rng, len(rel_val), h, w, pixels_per_view)
-    ours, ours_rgb = _ours_rays(val_views, pix, dm.near)
-    rel = _release_rays(val_pre.preprocessed_data_dict["nerf_data"], pix, h, w)
+    pix = pixels(rng, len(rel_val), h, w, pixels_per_view)
+    ours, ours_rgb = ours_rays(val_views, pix, dm.near)
+    rel = release_rays(val_pre.preprocessed_data_dict["nerf_data"], pix, h, w)
     what = f"validation rays ({len(rel_val)} x {pixels_per_view} px)"
     val_near = val_pre.preprocessed_data_dict["nerf_data"]["near"]
     if abs(val_near - mc["near"]) <= 1e-6 * mc["near"]:
@@ -410,13 +212,13 @@ def data_rows(release_src: Path, work_dir: Path, scene_dir: Path, kind: str, n_v
         note = (f"release bug, validation only: its NDC near is {val_near:.6f} (0.75 x the validation frames' min "
                 f"bound), not the training near {mc['near']:g}; ours uses {dm.near:g}; here ours switched to "
                 f"near {val_near:.6f}")
-        switched, _ = _ours_rays(val_views, pix, val_near)
+        switched, _ = ours_rays(val_views, pix, val_near)
         rows.extend(ray_rows(group, what, switched, rel, ours_rgb, note=note))
         rows.append(compare(group, f"{what}: NDC ray directions at ours' near 1 (not a failure)", ours.ndc_directions,
                             rel["rays_d_ndc"], np.inf, 0.0, note="the size of the release's validation-near bug"))
     test_frame = int(rel_test[len(rel_test) // 2])
     batch = train_pre.create_test_data(layout["w2c"][test_frame], intrinsic=layout["intrinsics"][test_frame])
-    pix = _pixels(rng, 1, h, w, pixels_per_view)
+    pix = pixels(rng, 1, h, w, pixels_per_view)
     flat = torch.from_numpy(pix[:, 2] * w + pix[:, 1]).long()
     rel = {k: batch[k].cpu()[flat] for k in ("rays_o", "rays_d", "rays_o_ndc", "rays_d_ndc")}
     from simplenerf.data.datasets import Frames
@@ -456,62 +258,6 @@ def committed_rows(repo: ReleaseRepo, group: str, kind: str, n_views: int, scene
     else:
         rows.append(flag(g, "intrinsic", True, f"not compared: the authors' frames are {cw}x{ch}, this project's copy "
                                               f"is the {w}x{h} centre crop with intrinsics adjusted"))
-    return rows
-
-
-def sparse_rows(group: str, dm, train_pre, synthetic: dict, h: int, w: int) -> list[Row]:
-    """Sparse-depth targets, weights and rays of the release's batch vs ours for the same observations."""
-    pool = dm.sparse_depth
-    rays_ds = dm.train_dataloader().dataset
-    ours = rays_ds.sparse_batch(torch.arange(len(pool)))
-    # The release's sparse-depth batch over its whole pool: get_next_batch with 1 random ray and P sparse rays.
-    rel_pool = train_pre.preprocessed_data_dict["sparse_depth_data"]["indices"]
-    train_pre.num_rays, train_pre.num_rays_sparse_depth = 1, rel_pool.size
-    train_pre.i_batch = train_pre.i_batch_sparse_depth = 0
-    batch = {k: v.cpu() if isinstance(v, torch.Tensor) else v for k, v in train_pre.get_next_batch(0).items()}
-    mask = batch["indices_mask_sparse_depth"]
-    rel_index = batch["indices"][mask].numpy()
-    # Our entries' pixels in the release's flat index (it rounds x, y: preprocess_raw_sparse_depth_data).
-    u = np.clip(np.round(pool.uv[:, 0].double().numpy()), 0, w - 1).astype(int)
-    v = np.clip(np.round(pool.uv[:, 1].double().numpy()), 0, h - 1).astype(int)
-    ours_flat = pool.view.numpy() * h * w + v * w + u
-    rows = [exact(group, "sparse depth: pixels with a depth (sorted flat index)", np.sort(ours_flat),
-                  np.sort(rel_index), note=f"{len(pool)} observations of synthetic points seen by >= 2 train views")]
-    if len(np.unique(ours_flat)) != len(ours_flat) or not np.array_equal(np.sort(ours_flat), np.sort(rel_index)):
-        return rows
-    position = {int(f): i for i, f in enumerate(rel_index)}
-    at = torch.tensor([position[int(f)] for f in ours_flat])
-    sel = lambda key: batch[key][mask][at]  # noqa: E731
-    rows.append(compare(group, "sparse depth: targets (scaled units)", ours.depth, sel("sparse_depth_values")[:, 0],
-                        1e-5, 1e-6, note="release: sparse_depth_values; ours: SparseDepthBatch.depth (z-depth in our "
-                                         "camera)"))
-    rows.append(compare(group, "sparse depth: our projection of the points vs the CSV's x, y (px)",
-                        torch.cat(synthetic["our_uv"]), pool.uv, 0.0, 1e-4))
-    rows.append(exact(group, "sparse depth: weights", ours.weight, torch.ones(len(pool)),
-                      note="release SparseDepthMSE01 is plain MSE (the CSV weight column is loaded, never used); "
-                           "ours weight 1 (sparse_depth_weighting off)"))
-    snapped = dm.train_views.rays(pool.view, torch.from_numpy(np.stack([u, v], -1)), dm.near)
-    rel = {"rays_o": sel("rays_o"), "rays_d": sel("rays_d"), "rays_o_ndc": sel("rays_o_ndc"),
-           "rays_d_ndc": sel("rays_d_ndc")}
-    rows.extend(ray_rows(group, "sparse-depth rays at the rounded pixel", snapped, rel,
-                         note="ours switched to the release's behaviour: the ray through the nearest pixel"))
-    # Deliberate difference: ours casts the ray through the keypoint itself.
-    shift = (pool.uv.double() - torch.from_numpy(np.stack([u, v], -1)).double()).abs().max().item()
-    exact_rays = ours.rays
-    rows.append(flag(group, "sparse-depth rays: ours through the keypoint", True,
-                     f"deliberate difference: ours cast through the keypoint (continuous uv), the release through "
-                     f"the nearest pixel (DataPreprocessor01.preprocess_raw_sparse_depth_data rounds x, y), up to "
-                     f"{shift:.2f} px apart; NDC direction max abs diff "
-                     f"{(exact_rays.ndc_directions - rel['rays_d_ndc']).abs().max().item():.2e}"))
-    # Self-consistency of ours: the point reached along each observing ray at its target depth is one point.
-    ends = exact_rays.origins.double() + ours.depth.double()[:, None] * exact_rays.directions.double()
-    ids = np.concatenate([v["point"] for v in synthetic["per_view"]])
-    first = {}
-    for i, p in enumerate(ids):
-        first.setdefault(int(p), i)
-    ref = ends[torch.tensor([first[int(p)] for p in ids])]
-    rows.append(compare(group, "sparse depth: o + z d agrees across the views of a point (ours)", ends, ref, 1e-5,
-                        1e-5, note="ours only: ray and depth of every observation reach the same 3D point"))
     return rows
 
 

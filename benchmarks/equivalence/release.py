@@ -1,7 +1,7 @@
 """The authors' release, run in this process: its published config, trainer, model and data, imported from a copy.
 
 Nothing of the release is copied here. `import_release` puts its `src/` on `sys.path` (no bytecode is written into
-it; its published configs are captured by `data.release_config`), and `build_trainer` builds what its
+it; its published configs are captured by `release_config`), and `build_trainer` builds what its
 `Trainer01.start_training` builds (data loader, data preprocessor, model, loss computer, Adam, learning-rate decayer,
 `Trainer01.Trainer`), without its training loop. The release's paths are relative (`../data`, `../runs`), so the
 process works in `<run_root>/src` of a layout made by `layouts.build_llff_layout`.
@@ -15,8 +15,12 @@ import types
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
+
+if TYPE_CHECKING:  # layouts imports pandas, which the training-step checks and their tests do not need
+    from benchmarks.equivalence.layouts import ReleaseRepo
 
 
 def import_release(release_src: Path) -> None:
@@ -104,3 +108,65 @@ def build_trainer(config: dict, run_root: Path, train_num: int = 9100,
         trainer = Trainer01.Trainer(config, data.get_model_configs(), data, None, model, losses, optimizer,
                                     lr_decayer, output.resolve(), config["device"], verbose_log=False)
     return ReleaseRun(config, trainer, model, data, losses, optimizer, lr_decayer)
+
+
+DEMOS = {2: "demo1a", 3: "demo1b", 4: "demo1c"}  # the release's published 2 / 3 / 4-view configs
+
+
+def release_config(repo: ReleaseRepo, kind: str, n_views: int) -> dict:
+    """The release's published training config for `n_views` views (its entry script's demo function), captured
+    by stopping its first `start_training` call, as ../shared/tools/official_timing/driver.py does."""
+    # skvideo is imported by the entry scripts for writing test videos only.
+    sys.modules.setdefault("skvideo", types.ModuleType("skvideo"))
+    sys.modules.setdefault("skvideo.io", types.ModuleType("skvideo.io"))
+    entry = repo.import_module("NerfLlffTrainerTester01" if kind == "llff" else "RealEstateTrainerTester01")
+    captured = {}
+
+    class Captured(Exception):
+        pass
+
+    def capture(configs):
+        captured["configs"] = configs
+        raise Captured
+
+    # `entry` is the release's entry script, patched by name: not every script defines every stage.
+    saved = {k: getattr(entry, k) for k in ("start_training", "start_testing", "start_testing_videos",
+                                            "start_testing_static_videos") if hasattr(entry, k)}
+    entry.start_training = capture
+    for k in saved:
+        if k != "start_training":
+            setattr(entry, k, lambda *a, **kw: None)
+    try:
+        getattr(entry, DEMOS[n_views])()
+    except Captured:
+        pass
+    finally:
+        for k, v in saved.items():
+            setattr(entry, k, v)
+    configs = captured["configs"]
+    configs["device"] = [0]  # CommonUtils01.get_device: cuda:0 if CUDA is available, else the CPU
+    return configs
+
+
+def run_release(repo: ReleaseRepo, configs: dict, data_dir: Path, scene_id: str, make_csvs) -> dict:
+    """The release's loaders and preprocessors for modes train and validation, on scene `scene_id`.
+
+    `make_csvs(train_frame_nums)` writes the sparse-depth CSVs before the train loader reads them.
+    """
+    loader_factory = repo.import_module("data_loaders.DataLoaderFactory")
+    preprocessor_factory = repo.import_module("data_preprocessors.DataPreprocessorFactory")
+    configs["data_loader"]["scene_id"] = scene_id  # as Trainer01.start_training sets it per scene
+    with release_device(torch.device("cpu")):  # the data rows compare on the CPU, also on a CUDA machine
+        return _run_release(loader_factory, preprocessor_factory, configs, data_dir, make_csvs)
+
+
+def _run_release(loader_factory, preprocessor_factory, configs: dict, data_dir: Path, make_csvs) -> dict:
+    train_loader = loader_factory.get_data_loader(configs, data_dir, mode="train")
+    make_csvs(train_loader.get_frame_nums())
+    train = preprocessor_factory.get_data_preprocessor(configs, "train", raw_data_dict=train_loader.load_data())
+    model_configs = train.get_model_configs()
+    val_loader = loader_factory.get_data_loader(configs, data_dir, mode="validation")
+    val = preprocessor_factory.get_data_preprocessor(configs, "validation", raw_data_dict=val_loader.load_data(),
+                                                     model_configs=model_configs)
+    test_frames = loader_factory.get_data_loader(configs, data_dir, mode="test").get_frame_nums()
+    return {"train": train, "val": val, "model_configs": model_configs, "test_frames": test_frames}

@@ -1,5 +1,5 @@
 r"""Seconds per training step and peak memory of a config on this machine: times N training iterations after W
-warm-up iterations and prints ONE JSON line (benchmarks.speed), e.g.
+warm-up iterations and prints ONE JSON line (benchmarks.speed.training_step), e.g.
 
     simplenerf benchmark --config configs/llff.yaml --steps 3 --warmup 2 --rays 256 --precision 32-true \
         --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern --data.init_args.sparse_rays_per_batch 256
@@ -32,19 +32,20 @@ from simplenerf.errors import SimpleNeRFError
 
 
 def speed():
-    """`benchmarks.speed`, the measurement: it lives in the repository's benchmarks/, not in the installed package, and
-    is found beside the package (a checkout, or an editable install) when the working folder is elsewhere."""
+    """`benchmarks.speed.training_step`, the measurement: it lives in the repository's benchmarks/, not in the
+    installed package, and is found beside the package (a checkout, or an editable install) when the working folder
+    is elsewhere. The package's one import of benchmarks/ (tests/test_layout.py allows this one only)."""
     try:
-        return importlib.import_module("benchmarks.speed")
+        return importlib.import_module("benchmarks.speed.training_step")
     except ModuleNotFoundError as e:
-        if e.name not in ("benchmarks", "benchmarks.speed"):
+        if e.name not in ("benchmarks", "benchmarks.speed", "benchmarks.speed.training_step"):
             raise
     root = Path(__file__).resolve().parents[2]
-    if not (root / "benchmarks" / "speed.py").is_file():
-        raise SimpleNeRFError(f"benchmark: the repository's benchmarks/speed.py is not beside the package ({root}); "
-                              "run simplenerf benchmark from a checkout of the repository")
+    if not (root / "benchmarks" / "speed" / "training_step.py").is_file():
+        raise SimpleNeRFError(f"benchmark: the repository's benchmarks/speed/training_step.py is not beside the "
+                              f"package ({root}); run simplenerf benchmark from a checkout of the repository")
     sys.path.insert(0, str(root))
-    return importlib.import_module("benchmarks.speed")
+    return importlib.import_module("benchmarks.speed.training_step")
 
 
 def measurement_parser(doc: str | None, prog: str | None = None) -> CommandParser:

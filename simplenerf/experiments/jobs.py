@@ -102,6 +102,28 @@ def _test(unit: Unit) -> None:
     run_cli(["test", *unit.args, *unit.logger_args, "--ckpt_path", "last"])
     if not summary.is_file() or summary.stat().st_mtime == before:
         raise JobFailed(f"test wrote no {summary}")
+    if unit.extra.get("heldout_depth"):
+        _heldout_depth(unit)
+
+
+def _heldout_depth(unit: Unit) -> None:
+    """The test's depth error at held-out SfM points (the sweep's `heldout_depth`), written as `simplenerf
+    heldout-depth --out` writes it, to `<run>/heldout_depth.json`, where the results table reads it."""
+    import json
+
+    from simplenerf.evaluation.heldout_depth import heldout_depth_error, heldout_observations
+    from simplenerf.run.cli import load_for_tool
+
+    ckpt = Path(unit.folder) / "checkpoints" / "last.ckpt"
+    try:
+        cli = load_for_tool([], unit.args, ckpt=str(ckpt), device=_device())
+        dm, model = cli.datamodule, cli.model
+        observations = heldout_observations(dm.scene, unit.extra["heldout_cache"], str(dm.scene.source.resolve()))
+        result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk)
+    except SimpleNeRFError as e:
+        raise JobFailed(f"held-out depth: {type(e).__name__}: {e}") from None
+    Path(unit.extra["heldout_depth"]).write_text(json.dumps({"ckpt": str(ckpt), **result}) + "\n")
+    print(f"held-out SfM depth error {result['rel_error_mean']:.4f} (mean): {unit.extra['heldout_depth']}", flush=True)
 
 
 def _device() -> str:
@@ -141,7 +163,8 @@ def _masks(unit: Unit) -> None:
 def _table(unit: Unit) -> None:
     from simplenerf.experiments.results import write_results
 
-    written = write_results(Path(unit.folder), unit.extra["runs"], unit.extra["tables"])
+    written = write_results(Path(unit.folder), unit.extra["runs"], unit.extra["tables"],
+                            unit.extra.get("scores", "masked"))
     print(f"results: {', '.join(map(str, written))}", flush=True)
 
 

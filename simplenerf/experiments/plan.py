@@ -8,7 +8,9 @@ dependencies.
       -> test (same; needs the masks' reference depth)   test/summary.json, test/metrics.csv
       -> table                   results.md / results.csv, in the layout of Tables 1-3, beside the paper's rows
 
-A scene with `reference_depth` (a folder, or `scene` for its own depth) has no dense and depth jobs.
+A scene with `reference_depth` (a folder, or `scene` for its own depth) has no dense and depth jobs; one with
+`reference_depth: none` has no masks job either (its tests score full frames). With `heldout_depth`, the test of an LLFF
+scene also writes `<run>/heldout_depth.json` (the depth error at held-out SfM points).
 
 Each job is a `Unit`: its stage, key, folder, the CLI arguments it runs with and a `digest`, the hash of what it
 computes (the resolved config with paths and logging left out, plus what it reads). A unit is done when its state
@@ -34,6 +36,7 @@ from pathlib import Path
 import yaml
 
 from simplenerf.experiments.spec import (
+    NO_DEPTH,
     SCENE_DEPTH,
     SceneEntry,
     Sweep,
@@ -203,7 +206,7 @@ def build_plan(sweep: Sweep, sweep_file: str | Path | None = None, check_scenes:
         if not Path(scene.path).is_dir():
             problems.append(f"scenes[{i}]: scene folder {scene.path} does not exist")
         ref = scene.reference_depth
-        if ref not in (None, SCENE_DEPTH) and not Path(ref).is_dir():
+        if ref not in (None, SCENE_DEPTH, NO_DEPTH) and not Path(ref).is_dir():
             problems.append(f"scenes[{i}] ({scene_name(scene)}): reference_depth folder {ref} does not exist")
         if problems and check_scenes:
             raise SweepError(problems[0])
@@ -214,7 +217,8 @@ def build_plan(sweep: Sweep, sweep_file: str | Path | None = None, check_scenes:
     for i, scene in enumerate(sweep.scenes):
         name = scene_name(scene)
         if scene.reference_depth is not None:
-            folder = None if scene.reference_depth == SCENE_DEPTH else str(Path(scene.reference_depth).resolve())
+            given = scene.reference_depth
+            folder = None if given in (SCENE_DEPTH, NO_DEPTH) else str(Path(given).resolve())
             for n in sweep.views:
                 depth_of[(name, n)] = (folder, digest_of("given", folder), None)
             continue
@@ -265,7 +269,7 @@ def build_plan(sweep: Sweep, sweep_file: str | Path | None = None, check_scenes:
             evaluation = config.get("evaluation") or {}
             for n in sweep.views:
                 ref_folder, ref_digest, ref_unit = depth_of[(name, n)]
-                if (name, n) not in masks:
+                if (name, n) not in masks and scene.reference_depth != NO_DEPTH:
                     folder = out / "masks" / name / f"{n}v"
                     key = f"{name}/{n}v"
                     masks[(name, n)] = Unit(
@@ -286,19 +290,25 @@ def build_plan(sweep: Sweep, sweep_file: str | Path | None = None, check_scenes:
                     log = logger(folder, key, [name, f"{n}v", model.name, f"seed{s}"])
                     fit = Unit("fit", key, str(folder), digest, args, log, [], labels, {"max_steps": max_steps})
                     test_args = [*args, "--data.init_args.reference_depth_dir", ref_folder or "null"]
-                    test = Unit("test", key, str(folder), digest_of(digest, ref_digest), test_args, log,
-                                [fit.id, masks[(name, n)].id], labels,
+                    mask = masks.get((name, n))
+                    heldout = sweep.heldout_depth and scene.format == "llff"
+                    test = Unit("test", key, str(folder),
+                                digest_of(digest, ref_digest, *(["heldout_depth"] if heldout else [])), test_args, log,
+                                [fit.id, *([mask.id] if mask else [])], labels,
                                 {"format": scene.format, "row": model.name if len(sweep.seeds) == 1
-                                 else f"{model.name} (seed {s})", "masks": masks[(name, n)].folder,
+                                 else f"{model.name} (seed {s})", "masks": mask.folder if mask else None,
                                  "lpips": evaluation.get("lpips", True),
                                  "lpips_weights": evaluation.get("lpips_weights")})
+                    if heldout:  # the SfM reference is cached beside the sparse depth (`simplenerf heldout-depth`)
+                        test.extra.update(heldout_depth=str(folder / "heldout_depth.json"),
+                                          heldout_cache=str(out / "cache" / "sparse_depth"))
                     fits.append(fit)
                     tests.append(test)
     units += list(masks.values()) + fits + tests
     table = Unit("table", sweep.name, str(out), digest_of([t.digest for t in tests], sweep.tables), [], [],
                  [t.id for t in tests], {"scene": "", "views": "", "model": "", "seed": ""},
                  {"runs": [[t.extra["format"], t.extra["row"], t.folder, t.key, t.extra["masks"]] for t in tests],
-                  "tables": sweep.tables,
+                  "tables": sweep.tables, "scores": sweep.scores,
                   "sweep_file": str(Path(sweep_file).resolve()) if sweep_file else None})
     units.append(table)
     if sweep.wandb.mode is not None:

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 
 from simplenerf.experiments.plan import Plan
-from simplenerf.experiments.spec import SCENE_DEPTH, SweepError, scene_name
+from simplenerf.experiments.spec import NO_DEPTH, SCENE_DEPTH, SweepError, scene_name
 
 NODE_LOCAL = ("/tmp", "/dev/shm", "/var/tmp")
 """Paths that are the submitting machine's own, not the compute nodes'."""
@@ -39,7 +39,7 @@ def scene_problems(plan: Plan) -> list[str]:
             if not f.exists() or not _readable(f):
                 problems.append(f"scenes[{i}] ({name}): {f} is missing or not readable ({scene.format} scenes have it)")
         ref = scene.reference_depth
-        if ref not in (None, SCENE_DEPTH) and (not Path(ref).is_dir() or not _readable(Path(ref))):
+        if ref not in (None, SCENE_DEPTH, NO_DEPTH) and (not Path(ref).is_dir() or not _readable(Path(ref))):
             problems.append(f"scenes[{i}] ({name}): reference_depth {ref} is not a readable folder")
     return problems
 

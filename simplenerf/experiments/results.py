@@ -1,5 +1,6 @@
 """The sweep's results table: its tested runs in the layout of the paper's Tables 1-3 (`simplenerf.reporting.tables`,
-the table of `simplenerf results`), beside the published rows of the table the sweep file names per scene format,
+the table of `simplenerf results`), beside the published rows of the table the sweep file names per scene format, in
+the sweep's `scores` (masked, full or both), with the held-out SfM depth error where runs have it (`heldout_depth`),
 written to `<sweep>/results.md` and `<sweep>/results.csv` (long format, one line per value).
 """
 
@@ -8,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from simplenerf.experiments.state import checkpoint_steps, process_alive, read_state
-from simplenerf.reporting.records import coverage_warnings, load_records, mean_rows
+from simplenerf.reporting.records import HELDOUT_KEYS, coverage_warnings, load_records, mean_rows
 from simplenerf.reporting.tables import (
     caption,
     csv_rows,
@@ -34,20 +35,23 @@ def write_results(out: Path, runs: list[list[str]], tables: dict[str, str], scor
         paper = tables.get(fmt)
         records = load_records(tested)
         rows = (paper_rows(paper) if paper else []) + mean_rows(records)
-        keys = [k for m in table_metrics(True) for k in score_keys(m, scores)]
+        heldout = any(r.frames[k] for r in records for k in HELDOUT_KEYS)  # runs with heldout_depth.json
+        keys = [k for m in table_metrics(True, heldout) for k in score_keys(m, scores)]
         views = table_views(rows, keys)
-        blocks += [f"## {FORMAT_TITLES.get(fmt, fmt)}", caption(scores, False, paper),
-                   markdown_table(rows, views, scores, depth=True)]
+        blocks += [f"## {FORMAT_TITLES.get(fmt, fmt)}", caption(scores, False, paper, heldout=heldout),
+                   markdown_table(rows, views, scores, depth=True, heldout=heldout)]
         notes = [f"- {w}" for w in coverage_warnings(records, keys)]
         if missing:
             notes.append(f"- {len(missing)} of {len(ours)} runs are not in the table (the means above are over the "
                          "others):")
             for run in missing:
                 key = run[3] if len(run) > 3 else run[2]
-                notes.append(f"  - {key}: {missing_reason(Path(run[2]), Path(run[4]) if len(run) > 4 else None)}")
+                masks = Path(run[4]) if len(run) > 4 and run[4] else None  # none: `reference_depth: none`
+                notes.append(f"  - {key}: {missing_reason(Path(run[2]), masks)}")
         if notes:
             blocks.append("\n".join(notes))
-        lines += csv_rows(fmt if paper is None else f"{fmt} ({paper})", rows, views, scores, depth=True)
+        lines += csv_rows(fmt if paper is None else f"{fmt} ({paper})", rows, views, scores, depth=True,
+                          heldout=heldout)
     md, csv = out / "results.md", out / "results.csv"
     md.write_text("\n\n".join(["# Results", *blocks]) + "\n")
     write_csv(csv, lines)

@@ -30,6 +30,11 @@ WANDB_MODES = ("online", "offline", "disabled")
 SCENE_DEPTH = "scene"
 """`reference_depth: scene`: the scene's own depth (`<scene>/depths_<factor>/`, e.g. the synthetic scene's exact
 depth), no dense NeRF."""
+NO_DEPTH = "none"
+"""`reference_depth: none`: the sweep makes no reference depth (no dense NeRF, no visibility-mask job): the tests score
+full frames (a scene's own depth maps, where it has them, are still read by the test). With `heldout_depth`, an LLFF
+scene's depth is scored at held-out SfM points instead."""
+SCORES = ("masked", "full", "both")  # simplenerf.reporting.tables.SCORES
 
 
 class SweepError(SimpleNeRFError):
@@ -50,7 +55,8 @@ class SceneEntry:
     """CLI overrides for this scene in every job, e.g. ["--data.init_args.factor", "1"]."""
     reference_depth: str | None = None
     """A folder of reference depth (<frame>.npy, `simplenerf export-depth`'s output) instead of a dense NeRF;
-    `scene`: the scene's own depth (depths_<factor>/); null: the sweep trains the dense NeRF."""
+    `scene`: the scene's own depth (depths_<factor>/); `none`: none (no dense NeRF, no visibility-mask job: full-frame
+    scores, NO_DEPTH); null: the sweep trains the dense NeRF."""
 
 
 @dataclass
@@ -200,6 +206,13 @@ class Sweep:
     reuse: list[str] = field(default_factory=list)
     """Output folders of other sweeps: a fit whose digest (its resolved config) is done there is linked into this sweep
     instead of trained again (its checkpoints; the test runs here), e.g. the ablations' SimpleNeRF rows from Table 1."""
+    heldout_depth: bool = False
+    """Every test of an LLFF scene also scores the depth at held-out SfM points (`<run>/heldout_depth.json`, what
+    `simplenerf heldout-depth --out` writes; the table's held-out columns): the depth score of a real scene without
+    reference depth (`reference_depth: none`)."""
+    scores: str = "masked"
+    """The table's scores: masked (the paper's: pixels seen by at least two train views), full (full frames: scenes
+    without reference depth have no masks) or both."""
 
 
 def sweep_parser() -> ArgumentParser:
@@ -287,6 +300,8 @@ def check_values(sweep: Sweep, path: Path) -> None:
         if fmt not in FORMATS or table not in TABLES:
             raise SweepError(f"{path}: tables: {fmt}: {table} (formats: {', '.join(FORMATS)}; tables: "
                              f"{', '.join(TABLES)})")
+    if sweep.scores not in SCORES:
+        raise SweepError(f"{path}: scores {sweep.scores!r} is not one of {', '.join(SCORES)}")
     if sweep.wandb.mode is not None and sweep.wandb.mode not in WANDB_MODES:
         raise SweepError(f"{path}: wandb.mode {sweep.wandb.mode!r} is not one of {', '.join(WANDB_MODES)}")
     for stage in sweep.resources.stages:

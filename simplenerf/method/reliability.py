@@ -251,7 +251,7 @@ class PatchReprojectionMask(ReliabilityMask):
             require_in_front: a depth whose 3D point lies behind the nearest view's camera is never trusted. The
                 release (`loss_functions/*DepthLoss02.py`, `utils/CommonUtils01.reproject`) has no such check: a
                 point behind the camera projects through the pinhole mirrored and may be compared with an unrelated
-                patch. False reproduces the release (used by `benchmarks/release_equivalence.py`).
+                patch. False reproduces the release (used by `benchmarks/equivalence/check.py`).
         """
         _check_patch_size(patch_size)
         if not error_threshold > 0:

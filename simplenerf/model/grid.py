@@ -1,6 +1,6 @@
 """A grid radiance field: K-Planes (Fridovich-Keil et al., CVPR 2023) over the NDC box of forward-facing scenes.
 
-Why K-Planes (benchmarks/grid_cost.py; docs/results.md "Grid backbone"): of the pure-PyTorch grids tried on
+Why K-Planes (benchmarks/speed/grid_cost.py; docs/results.md "Grid backbone"): of the pure-PyTorch grids tried on
 the 2-core CPU, its forward + backward + Adam step per sample point was among the cheapest (about 25x cheaper than
 the paper's 8x256 MLP), the parameters Adam updates each step stay small (planes, not volumes), it was shown on LLFF
 in NDC, and its multi-scale planes give SimpleNeRF's points augmentation directly: the same field with its coarsest

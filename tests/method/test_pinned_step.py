@@ -11,7 +11,7 @@ nearest view), the one-way supervision or the coarse-fine sparse-ray term change
 docs/testing.md).
 
 Recorded with `python tests/method/test_pinned_step.py` (prints the values), at the commit that added
-benchmarks/release_equivalence.py, whose check of the same code path against the release passes.
+benchmarks/equivalence/check.py, whose check of the same code path against the release passes.
 """
 
 from __future__ import annotations

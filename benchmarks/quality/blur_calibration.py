@@ -7,7 +7,7 @@ and the streaks come from"): each test photo against degraded copies of itself, 
 - `shiftN`: the photo moved N pixels sideways (geometry misplaced by N pixels, detail kept);
 - `nearest_train`: the nearest training photo as it is (no warp at all).
 
-    python -m benchmarks.blur_calibration ../shared/data/nerf_llff_data/fern --factor 4 [--views 2]
+    python -m benchmarks.quality.blur_calibration ../shared/data/nerf_llff_data/fern --factor 4 [--views 2]
 
 Prints one JSON line: per degradation, mean PSNR and LPIPS over the test frames (the paper's LLFF split).
 """

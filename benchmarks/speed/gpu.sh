@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # The paper's path on one CUDA GPU, in under 10 minutes: configs/llff.yaml on LLFF fern (images_4, 2 views).
 #
-#   benchmarks/gpu.sh [OUT]            # OUT: the output folder (default runs/gpu/<UTC date and time>)
-#   benchmarks/gpu.sh --dry-run [OUT]  # prints each command it would run (with its time limit); runs nothing
+#   benchmarks/speed/gpu.sh [OUT]            # OUT: the output folder (default runs/gpu/<UTC date and time>)
+#   benchmarks/speed/gpu.sh --dry-run [OUT]  # prints each command it would run (with its time limit); runs nothing
 #
 # Steps, each with a time limit (in brackets; all of them together at most BUDGET = 570 s):
 #   1. SfM for the sparse depth (pycolmap, CPU), once, cached, so that no measured process includes it [60 s]
 #   2. `simplenerf benchmark`: the paper's training step (2048 + 2048 rays, every loss on), WARMUP + STEPS
 #      iterations, in fp32, fp32 with TF32 matrix products and bf16-mixed: s/it and peak GPU memory [55 s each]
-#   3. the release-equivalence check (benchmarks/release_equivalence.py) with both sides on the GPU (--device cuda):
+#   3. the release-equivalence check (benchmarks/equivalence/check.py) with both sides on the GPU (--device cuda):
 #      one training step with 2, 3 and 4 views and a 100-step trajectory, no data rows (they run on the CPU) [110 s]
 #   4. a FIT_STEPS-step fit of configs/llff.yaml (default 500) [150 s], with these overrides so that it fits the time:
 #      --trainer.precision bf16-mixed, configs/overrides/budget/warmup_10.yaml (L_ap, L_av, L_cfc from step 10, not
@@ -20,7 +20,7 @@
 # Output (OUT): results.jsonl (one JSON line per step: its status, wall seconds and what it measured: the machine;
 # `simplenerf benchmark`'s line; the equivalence check's rows; the fit's global step; the test's means), summary.md,
 # logs/<step>.log (each step's output), fit/ (the run: checkpoints, config.yaml, test/), release_equivalence.md (the
-# table). benchmarks/gpu_report.py writes results.jsonl and summary.md.
+# table). benchmarks/speed/gpu_report.py writes results.jsonl and summary.md.
 #
 # Without a CUDA device it prints one line and exits 1, having run and written nothing.
 # Environment (defaults in brackets):
@@ -48,7 +48,7 @@ while [ $# -gt 0 ]; do
   esac
   shift
 done
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 if [ -z "${PYTHON:-}" ]; then
   if [ -x .venv/bin/python ]; then PYTHON=.venv/bin/python; else PYTHON=python3; fi
 fi
@@ -69,7 +69,7 @@ bench=(-m simplenerf benchmark --config configs/llff.yaml --steps "$STEPS" --war
 fit=(-m simplenerf fit --config configs/llff.yaml --config configs/overrides/budget/warmup_10.yaml "${data[@]}"
   --trainer.max_steps "$FIT_STEPS" --trainer.precision bf16-mixed --trainer.val_check_interval $((FIT_STEPS / 2))
   --checkpoint.every_n_train_steps "$FIT_STEPS" --trainer.default_root_dir "$OUT/fit" --overwrite true)
-equivalence=(-m benchmarks.release_equivalence --release-src "$RELEASE_SRC" ${RELEASE_GIT:+--release-git "$RELEASE_GIT"}
+equivalence=(-m benchmarks.equivalence.check --release-src "$RELEASE_SRC" ${RELEASE_GIT:+--release-git "$RELEASE_GIT"}
   --scene-dir "$SCENE" --device cuda --views 2 3 4 --skip-data --trajectory-steps 100
   --work-dir "$OUT/release_equivalence_work" --out "$OUT/release_equivalence.md"
   --json "$OUT/logs/release_equivalence.json")
@@ -88,14 +88,14 @@ step() {  # step NAME LIMIT_S [record options --] PYTHON_ARGS...: runs "$PYTHON"
     return 0
   fi
   if [ "$limit" -le 0 ]; then
-    "$PYTHON" -m benchmarks.gpu_report record "$OUT" "$name" skipped 0 --note "no time left of BUDGET=$BUDGET s"
+    "$PYTHON" -m benchmarks.speed.gpu_report record "$OUT" "$name" skipped 0 --note "no time left of BUDGET=$BUDGET s"
     echo "gpu.sh: $name skipped: no time left of the $BUDGET s budget" >&2
     return 1
   fi
   local t0=$SECONDS status
   timeout "$limit" "$PYTHON" "$@" > "$OUT/logs/$name.log" 2>&1
   status=$?
-  "$PYTHON" -m benchmarks.gpu_report record "$OUT" "$name" "$status" $((SECONDS - t0)) "${rec[@]}"
+  "$PYTHON" -m benchmarks.speed.gpu_report record "$OUT" "$name" "$status" $((SECONDS - t0)) "${rec[@]}"
   if [ "$status" = 0 ]; then
     echo "$name done in $((SECONDS - t0)) s ($((SECONDS - start)) s in)"
   else
@@ -129,7 +129,7 @@ print(json.dumps({"gpu": p.name, "memory_gib": round(p.total_memory / 2**30, 1),
                   "driver": driver, "torch": torch.__version__, "cuda": torch.version.cuda, "commit": git_commit(),
                   "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}))
 EOF
-  "$PYTHON" -m benchmarks.gpu_report record "$OUT" machine 0 0 --from-json "$OUT/logs/machine.json"
+  "$PYTHON" -m benchmarks.speed.gpu_report record "$OUT" machine 0 0 --from-json "$OUT/logs/machine.json"
   "$PYTHON" -c 'import json, sys; m = json.load(open(sys.argv[1]))
 print(f"GPU: {m[\"gpu\"]}, {m[\"memory_gib\"]:.0f} GiB, {m[\"sms\"]} SMs, driver {m[\"driver\"]}; torch {m[\"torch\"]}, CUDA {m[\"cuda\"]}")' \
     "$OUT/logs/machine.json"
@@ -149,7 +149,7 @@ if [ -f "$RELEASE_SRC/Trainer01.py" ]; then
 elif [ "$DRY_RUN" = 1 ]; then
   echo "# release_equivalence: skipped (recorded as such): no release at RELEASE_SRC=$RELEASE_SRC"
 else
-  "$PYTHON" -m benchmarks.gpu_report record "$OUT" release_equivalence skipped 0 \
+  "$PYTHON" -m benchmarks.speed.gpu_report record "$OUT" release_equivalence skipped 0 \
     --note "no release at RELEASE_SRC=$RELEASE_SRC (docs/equivalence.md: a clone at c429746)"
   echo "gpu.sh: release_equivalence skipped: no release at RELEASE_SRC=$RELEASE_SRC" >&2
 fi
@@ -158,9 +158,9 @@ if [ -f "$OUT/fit/checkpoints/last.ckpt" ] || [ "$DRY_RUN" = 1 ]; then
   step test 55 --test-summary "$OUT/fit/test/summary.json" -- \
     -m simplenerf test --config "$OUT/fit/config.yaml" --ckpt_path last
 else
-  "$PYTHON" -m benchmarks.gpu_report record "$OUT" test skipped 0 --note "the fit wrote no last.ckpt"
+  "$PYTHON" -m benchmarks.speed.gpu_report record "$OUT" test skipped 0 --note "the fit wrote no last.ckpt"
 fi
 
 [ "$DRY_RUN" = 1 ] && exit 0
 echo "total $((SECONDS - start)) s; figures in $OUT/results.jsonl"
-"$PYTHON" -m benchmarks.gpu_report summary "$OUT"
+"$PYTHON" -m benchmarks.speed.gpu_report summary "$OUT"

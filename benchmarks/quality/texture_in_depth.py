@@ -12,7 +12,7 @@ e = (z - z_exact) / z_exact the relative error and |grad e| its gradient magnitu
 - `texture_ratio` = textured_roughness / plain_roughness: 1 when the depth's jumps do not follow the picture's,
   above 1 when they do.
 
-    python -m benchmarks.texture_in_depth runs/grid_demo runs/grid_demo_dsnerf
+    python -m benchmarks.quality.texture_in_depth runs/grid_demo runs/grid_demo_dsnerf
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ release's `Tester01.NerfTester` and times `NerfTester.predict_frame` (rays in nu
 under no_grad, post-processing to an 8-bit image), the call the release's tester makes per test frame. Without
 `--model_name` the weights are the initial ones: the same work per ray, other pictures.
 
-    OMP_NUM_THREADS=2 $OFFICIAL/venv/bin/python benchmarks/release_render.py --train_num 9002 --frames 1 \
+    OMP_NUM_THREADS=2 $OFFICIAL/venv/bin/python benchmarks/speed/release_render.py --train_num 9002 --frames 1 \
         --official_src $OFFICIAL/simplenerf_official/src --run_root $OFFICIAL/official_run
 
 `--rows R` renders only the top R rows of the frame (a smoke test: the work per ray is the same).

@@ -2,7 +2,7 @@
 [photo | SimpleNeRF's render | SimpleNeRF's depth | DS-NeRF's depth | exact depth], the depths in one colour range
 (that of the exact depth; near = warm), each panel enlarged `--zoom` times, e.g.
 
-    python -m benchmarks.demo_picture runs/grid_demo runs/grid_demo_dsnerf --out docs/images/demo.png
+    python -m benchmarks.quality.demo_picture runs/grid_demo runs/grid_demo_dsnerf --out docs/images/demo.png
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 (`[256, M] @ [M, 256]`), each timed in a loop after one untimed call; GFLOP/s per product, one JSON line per
 (dtype, M). What `profile_step.py`'s matrix-product rate can be compared with.
 
-    OMP_NUM_THREADS=2 python -m benchmarks.gemm_rate [--rows 16384 65536] [--dtypes float32 bfloat16]
+    OMP_NUM_THREADS=2 python -m benchmarks.speed.gemm_rate [--rows 16384 65536] [--dtypes float32 bfloat16]
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ also how each view's rays spread their weight along the ray: the weighted standa
 NDC t (a uniform fog over [0, 1): 0.29; an opaque surface: about 0) and the share of the weight farther than 0.05 in
 NDC t from the ray's median.
 
-    python -m benchmarks.view_scores runs/grid/fern_seed0_simplerf [--factor 4] [--frames 6,13,16] [--spread] \
+    python -m benchmarks.quality.view_scores runs/grid/fern_seed0_simplerf [--factor 4] [--frames 6,13,16] [--spread] \
         [--out DIR] [-- CLI overrides]
 
 The run's config.yaml and checkpoints/last.ckpt are read; `--factor` renders at another image size of the same

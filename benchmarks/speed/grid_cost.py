@@ -1,6 +1,6 @@
 """Per-sample cost of one training step (forward + backward + Adam step) of candidate fields, on random points.
 
-    OMP_NUM_THREADS=1 python -m benchmarks.grid_cost [--points 32768] [--repeats 5]
+    OMP_NUM_THREADS=1 python -m benchmarks.speed.grid_cost [--points 32768] [--repeats 5]
 
 Rows: the paper's MLP (`RadianceField()`, 8x256, 63 + 27 encoded inputs), the CPU configs' 4x64 MLP, the shipped
 K-Planes fields (`simplenerf.model.grid.KPlanesField`) at the sizes of configs/grid/*.yaml, and the other pure-PyTorch

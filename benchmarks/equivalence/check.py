@@ -7,7 +7,7 @@ It needs a copy of the release (its `src/`; its split CSVs under `data/` beside 
 Python with torch 2.13.0, this package and the release's few dependencies; it builds the release's on-disk layout of
 the scene itself (`benchmarks/equivalence/layouts.py`) under `--work-dir`. docs/equivalence.md has the setup:
 
-    python -m benchmarks.release_equivalence --release-src $REL/src --scene-dir ../shared/data/nerf_llff_data/fern \
+    python -m benchmarks.equivalence.check --release-src $REL/src --scene-dir ../shared/data/nerf_llff_data/fern \
         --realestate ../shared/data/realestate10k/000c3ab189999a83
 
 checks the data of fern with 2, 3 and 4 views (and the RealEstate-10K clip), one training step per view count and a
@@ -37,7 +37,7 @@ from benchmarks.equivalence import step as steps
 from benchmarks.equivalence.report import Report, compare, flag
 from benchmarks.equivalence.weights import copy_release_weights
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 class DeviceError(ValueError):
@@ -107,7 +107,7 @@ def llff_step_layout(repo, work_dir: Path, scene_dir: Path, factor: int, config:
 
 def step_check(args, repo, report: Report, views: int, trajectory: bool) -> None:
     """One training step (and optionally a trajectory) of the release and ours on `args.scene_dir` with `views`."""
-    from benchmarks.equivalence.data import release_config
+    from benchmarks.equivalence.release import release_config
 
     dtype = getattr(torch, args.dtype)
     # Tolerances (docs/equivalence.md explains them): elementwise rtol / atol for outputs and losses; the norm-wise
@@ -196,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-data", action="store_true", help="only the training-step checks")
     ap.add_argument("--out", type=Path, default=None, help="also write the table here (markdown)")
     ap.add_argument("--json", type=Path, default=None, help="also write one JSON line here: device, rows, failed "
-                    "rows, seconds (benchmarks/gpu.sh collects it)")
+                    "rows, seconds (benchmarks/speed/gpu.sh collects it)")
     args = ap.parse_args(argv)
     try:
         args.device = check_device(args.device)

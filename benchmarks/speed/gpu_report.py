@@ -1,8 +1,8 @@
-"""The figures of `benchmarks/gpu.sh`: one JSON line per step in `<out>/results.jsonl`, and `<out>/summary.md`.
+"""The figures of `benchmarks/speed/gpu.sh`: one JSON line per step in `<out>/results.jsonl`, and `<out>/summary.md`.
 
-    python -m benchmarks.gpu_report record OUT STEP STATUS WALL_S [--from-json FILE] [--test-summary FILE]
+    python -m benchmarks.speed.gpu_report record OUT STEP STATUS WALL_S [--from-json FILE] [--test-summary FILE]
                                            [--checkpoint FILE] [--note TEXT]
-    python -m benchmarks.gpu_report summary OUT
+    python -m benchmarks.speed.gpu_report summary OUT
 
 `record` appends one line: the step's name, exit status (0 done, 124 its time limit, "skipped"), wall seconds, and
 what the step measured: the last JSON line of `--from-json` (`simplenerf benchmark`'s measurement, the

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The authors' release and ours, alternating in one sitting, on LLFF fern images_4 with 2 views; then one table.
 #
-#   benchmarks/side_by_side.sh [VARIANT [PRECISIONS [REPS]]]   e.g.  benchmarks/side_by_side.sh B 32-true,bf16-mixed 3
+#   benchmarks/speed/side_by_side.sh [VARIANT [PRECISIONS [REPS]]]   e.g.  benchmarks/speed/side_by_side.sh B 32-true,bf16-mixed 3
 #
 # VARIANT (as ../shared/tools/official_timing/README.md):
 #   A  the paper's config: 2048 + 2048 rays          release: driver.py --variant A;  ours: configs/llff.yaml
@@ -19,9 +19,9 @@
 #   STEPS [4]  WARMUP [2]  THREADS [2] (OMP_NUM_THREADS of both)  OUT [runs/side_by_side/<variant>_<precision>_<time>]
 #   EXTRA      more CLI overrides for ours (e.g. "--model.chunk 4096")
 # Results: OUT/release_<V>_<rep>.json (driver.py --json_out; log beside it), OUT/ours_<V>_<P>_<rep>.json (one JSON line
-# of `simplenerf benchmark`; log beside it), OUT/table.md (benchmarks/summarize.py).
+# of `simplenerf benchmark`; log beside it), OUT/table.md (benchmarks/speed/summarize.py).
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 VARIANT=${1:-B} PRECISIONS=${2:-32-true} REPS=${3:-3}
 OFFICIAL=${OFFICIAL:-/work/official}
 HARNESS=${HARNESS:-../shared/tools/official_timing}
@@ -79,4 +79,4 @@ for rep in $(seq 1 "$REPS"); do
     for ((i = ${#precisions[@]} - 1; i >= 0; i--)); do ours "$rep" "${precisions[i]}"; done; release "$rep"
   fi
 done
-"$PYTHON" -m benchmarks.summarize "$OUT"/release_*.json "$OUT"/ours_*.json | tee "$OUT/table.md"
+"$PYTHON" -m benchmarks.speed.summarize "$OUT"/release_*.json "$OUT"/ours_*.json | tee "$OUT/table.md"

@@ -1,7 +1,7 @@
 """Markdown table of a side-by-side sitting: the release's driver.py JSON files and our `simplenerf benchmark` JSON
 lines.
 
-    python -m benchmarks.summarize results/side_by_side/*.json
+    python -m benchmarks.speed.summarize results/side_by_side/*.json
 
 Per variant (our runs carry it as `label`) and our precision: pooled s/it of the release (its discarded warm-up
 iterations and short sparse-depth batches left out, as ../shared/tools/official_timing/summarize.py) and of ours

@@ -4,7 +4,7 @@ columns|, divided by the same ratio of the held-out photo. 1: as isotropic as th
 (horizontal streaks); below 1: along columns. A frame is matched to the photo of the scene's `images_<factor>`
 folder with the same name, else by the index its name ends with (`image008` -> the 9th photo).
 
-    python -m benchmarks.streak_index runs/grid/fern_seed0_simplenerf --scene ../shared/data/nerf_llff_data/fern
+    python -m benchmarks.quality.streak_index runs/grid/fern_seed0_simplenerf --scene ../shared/data/nerf_llff_data/fern
 """
 
 from __future__ import annotations

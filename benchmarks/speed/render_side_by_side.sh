@@ -2,7 +2,7 @@
 # Full-frame rendering, the authors' release and ours, of fern's first test view (frame 0, 1008x756 = 762048 rays,
 # images_4, 2-view split; initial weights on both sides: the same work per ray), one after the other; then rays/s.
 #
-#   benchmarks/render_side_by_side.sh [ROWS]
+#   benchmarks/speed/render_side_by_side.sh [ROWS]
 #
 # ROWS renders only the top ROWS rows on both sides (1008 rays each): a full frame on a 2-core CPU takes hours for
 # either (about 195 M field evaluations of the 8x256 MLP), so on a CPU use e.g. ROWS=32. Both sides render in fp32
@@ -10,11 +10,11 @@
 # configs/llff.yaml). The release's side needs a training folder written by driver.py (its configs; any variant
 # with the augmentations: the default train9002 is variant B's, made by side_by_side.sh B or driver.py --variant B).
 #
-# Environment as benchmarks/side_by_side.sh: OFFICIAL [/work/official], PYTHON [.venv/bin/python],
+# Environment as benchmarks/speed/side_by_side.sh: OFFICIAL [/work/official], PYTHON [.venv/bin/python],
 # SCENE [../shared/data/nerf_llff_data/fern], THREADS [2], OUT [runs/render_side_by_side/<time>], TRAIN_NUM [9002],
 # PRECISION [32-true] (ours), EXTRA (more overrides for ours), DEVICE [cpu] (cuda: the release on the GPU too).
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 ROWS=${1:-}
 OFFICIAL=${OFFICIAL:-/work/official}
 PYTHON=${PYTHON:-.venv/bin/python}
@@ -30,10 +30,10 @@ export OMP_NUM_THREADS=$THREADS WANDB_MODE=offline
 rows=()
 [ -z "$ROWS" ] || rows=(--rows "$ROWS")
 
-"$OFFICIAL/venv/bin/python" benchmarks/release_render.py --official_src "$OFFICIAL/simplenerf_official/src" \
+"$OFFICIAL/venv/bin/python" benchmarks/speed/release_render.py --official_src "$OFFICIAL/simplenerf_official/src" \
   --run_root "$OFFICIAL/official_run" --train_num "$TRAIN_NUM" --frame 0 --frames 1 --threads "$THREADS" \
   --device "$DEVICE" "${rows[@]}" > "$OUT/release_render.json" 2> "$OUT/release_render.log"
-"$PYTHON" -m benchmarks.render --config configs/llff.yaml --frames 1 --precision "$PRECISION" "${rows[@]}" \
+"$PYTHON" -m benchmarks.speed.render --config configs/llff.yaml --frames 1 --precision "$PRECISION" "${rows[@]}" \
   -- --data.init_args.scene_dir "$SCENE" --data.init_args.n_views 2 --data.init_args.factor 4 ${EXTRA:-} \
   > "$OUT/ours_render.json" 2> "$OUT/ours_render.log"
 "$PYTHON" - "$OUT/release_render.json" "$OUT/ours_render.json" <<'EOF'

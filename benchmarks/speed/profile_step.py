@@ -2,7 +2,7 @@
 markdown table of the top operators by self CPU time, then ONE JSON line with the iteration's wall, user and system
 time and minor page faults. E.g. the release's variant B on one thread:
 
-    OMP_NUM_THREADS=1 python -m benchmarks.profile_step --config configs/llff.yaml --warmup 2 \
+    OMP_NUM_THREADS=1 python -m benchmarks.speed.profile_step --config configs/llff.yaml --warmup 2 \
         -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern \
            --data.init_args.rays_per_batch 256 --data.init_args.sparse_rays_per_batch 256
 
@@ -19,7 +19,7 @@ import sys
 import lightning as L
 import torch
 
-from benchmarks.speed import StepTimer, measuring_trainer, peak_rss_gib
+from benchmarks.speed.training_step import StepTimer, measuring_trainer, peak_rss_gib
 from simplenerf.commands.benchmark import emit, record_header, stdout_to_stderr, training_args
 
 
@@ -124,7 +124,8 @@ def profile_table(result: dict) -> str:
 
 def main(argv: list[str] | None = None) -> dict:
     args, overrides, cli = training_args(sys.argv[1:] if argv is None else argv, __doc__,
-                                         {"top": (25, "operators to list")}, prog="python -m benchmarks.profile_step")
+                                         {"top": (25, "operators to list")},
+                                         prog="python -m benchmarks.speed.profile_step")
     with stdout_to_stderr():
         result = profile_training(cli.model, cli.datamodule, args.warmup, args.precision, args.top, args.accelerator)
     record = {**record_header("profile", args, overrides), "warmup": args.warmup, **result}

@@ -1,6 +1,6 @@
 """Times full-frame rendering of test views (the data module's predict frames, in order); prints ONE JSON line, e.g.
 
-    python -m benchmarks.render --config configs/llff.yaml --frames 1 [--ckpt_path runs/llff/checkpoints/last.ckpt] \
+    python -m benchmarks.speed.render --config configs/llff.yaml --frames 1 [--ckpt_path runs/llff/checkpoints/last.ckpt] \
         -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern
 
 The first test view of fern at factor 4 is frame 0, 1008x756 = 762048 rays. The JSON holds s/frame (median, min,
@@ -21,7 +21,7 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader
 
-from benchmarks.speed import (
+from benchmarks.speed.training_step import (
     cpu_seconds,
     cuda_peaks,
     device_name,
@@ -146,7 +146,7 @@ def time_rendering(
 
 def main(argv: list[str] | None = None) -> dict:
     own, overrides = split_overrides(sys.argv[1:] if argv is None else argv)
-    parser = measurement_parser(__doc__, prog="python -m benchmarks.render")
+    parser = measurement_parser(__doc__, prog="python -m benchmarks.speed.render")
     parser.add_argument("--ckpt_path", dest="ckpt", old=("--ckpt",), default=None,
                         help="trained weights (default: initial weights, same cost)")
     parser.add_argument("--frames", type=int, default=1, help="timed frames (test views in order)")

@@ -347,12 +347,10 @@ def test_counts_must_be_positive(option, value, expected, tmp_path):
      "transformer-engine-float16, 16-true, 16-mixed, bf16-true, bf16-mixed, 32-true, 64-true, bf16, null; got fp8"),
     (["--viewer", "true", "--viewer_port", "99999"], "--viewer_port: expected a port number 0-65535, got 99999"),
     # Options manual optimisation does not honour, and abbreviations, which are not taken as the full name.
-    (["--trainer.gradient_clip_val", "0.5"], "--trainer.gradient_clip_val 0.5: SimpleNeRF optimises manually (one "
-     "update per step), which Lightning's gradient_clip_val does not apply to; leave it unset (a larger "
-     "--data.init_args.rays_per_batch with --model.rays_per_backward accumulates gradients over a batch's parts)"),
-    (["--trainer.accumulate_grad_batches", "2"], "--trainer.accumulate_grad_batches 2: SimpleNeRF optimises manually"
-     " (one update per step), which Lightning's accumulate_grad_batches does not apply to; leave it unset (a larger "
-     "--data.init_args.rays_per_batch with --model.rays_per_backward accumulates gradients over a batch's parts)"),
+    *[(["--trainer." + option, value], f"--trainer.{option} {value}: SimpleNeRF optimises manually (one update per "
+       f"step), which Lightning's {option} does not apply to; leave it unset (a larger --data.init_args.rays_per_batch"
+       " with --model.rays_per_backward accumulates gradients over a batch's parts)")
+      for option, value in (("gradient_clip_val", "0.5"), ("accumulate_grad_batches", "2"))],
     (["--optimizer", "torch.optim.SGD"], "unrecognized arguments: --optimizer torch.optim.SGD"),
     (["--trainer.max_step", "5"], "unrecognized arguments: --trainer.max_step 5"),
     # Lines that end with their cause: the class, the kind of path.

@@ -8,8 +8,10 @@ NDC t from the ray's median.
     python -m benchmarks.quality.view_scores runs/grid/fern_seed0_simplerf [--factor 4] [--frames 6,13,16] [--spread] \
         [--out DIR] [-- CLI overrides]
 
-The run's config.yaml and checkpoints/last.ckpt are read; `--factor` renders at another image size of the same
-scene. Prints one JSON line (per frame and per kind: PSNR, LPIPS, and the spread).
+The run's config.yaml and checkpoints/last.ckpt (or `--ckpt_path`, e.g. an earlier step's checkpoint) are read;
+`--factor` renders at another image size of the same scene. A frame in neither the train nor the test split is a
+"validation" view: the place to compare settings without looking at the test frames. Prints one JSON line (per frame
+and per kind, train / validation / test: PSNR, LPIPS, and the spread).
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ def main() -> None:
     parser.add_argument("run", type=Path)
     parser.add_argument("--factor", type=int, help="render at images_<factor> (default: the run's)")
     parser.add_argument("--frames", help="comma-separated frame indices (default: train then test)")
+    parser.add_argument("--ckpt_path", type=Path, help="the checkpoint to load (default: RUN/checkpoints/last.ckpt)")
     parser.add_argument("--spread", action="store_true", help="also the weight spread along the rays")
     parser.add_argument("--out", type=Path, help="write photo | render PNGs here")
     args = parser.parse_args(own)
@@ -57,7 +60,7 @@ def main() -> None:
         cli_args += ["--data.init_args.factor", str(args.factor)]
     cli = make_cli(cli_args + overrides, run=False)
     model, data = cli.model, cli.datamodule
-    state = torch.load(args.run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    state = torch.load(args.ckpt_path or args.run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
     model.load_state_dict(state["state_dict"])
     model.eval()
     data.setup("test")
@@ -72,7 +75,7 @@ def main() -> None:
             render = model.render_frame(frame)
         photo = frame.rgb.reshape(frame.height, frame.width, 3)
         rgb = render.rgb.clamp(0, 1)
-        kind = "train" if frame.index in split.train else "test"
+        kind = "train" if frame.index in split.train else "test" if frame.index in split.test else "validation"
         scores = {"kind": kind, "psnr": psnr(rgb[None], photo[None]).item(),
                   "lpips": lpips(rgb[None], photo[None], net).item()}
         if args.spread:
@@ -83,11 +86,11 @@ def main() -> None:
             picture = to_uint8(torch.cat([photo, rgb], dim=1).numpy())
             cv2.imwrite(str(args.out / f"{kind}_{frame.index:03d}.png"), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR))
     means = {}
-    for kind in ("train", "test"):
+    for kind in ("train", "validation", "test"):
         rows = [s for s in per_frame.values() if s["kind"] == kind]
         if rows:
             means[kind] = {k: round(float(np.mean([r[k] for r in rows])), 4) for k in rows[0] if k != "kind"}
-    print(json.dumps({"run": str(args.run), "factor": args.factor, "frames": per_frame, "mean": means}))
+    print(json.dumps({"run": str(args.run), "checkpoint": str(args.ckpt_path or "last"), "factor": args.factor, "frames": per_frame, "mean": means}))
 
 
 if __name__ == "__main__":

@@ -90,7 +90,8 @@ def main() -> None:
         rows = [s for s in per_frame.values() if s["kind"] == kind]
         if rows:
             means[kind] = {k: round(float(np.mean([r[k] for r in rows])), 4) for k in rows[0] if k != "kind"}
-    print(json.dumps({"run": str(args.run), "checkpoint": str(args.ckpt_path or "last"), "factor": args.factor, "frames": per_frame, "mean": means}))
+    print(json.dumps({"run": str(args.run), "checkpoint": str(args.ckpt_path or "last"), "factor": args.factor,
+                      "frames": per_frame, "mean": means}))
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Times full-frame rendering of test views (the data module's predict frames, in order); prints ONE JSON line, e.g.
 
-    python -m benchmarks.speed.render --config configs/llff.yaml --frames 1 [--ckpt_path runs/llff/checkpoints/last.ckpt] \
-        -- --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern
+    python -m benchmarks.speed.render --config configs/llff.yaml --frames 1 \
+        [--ckpt_path runs/llff/checkpoints/last.ckpt] --data.init_args.scene_dir ../shared/data/nerf_llff_data/fern
 
 The first test view of fern at factor 4 is frame 0, 1008x756 = 762048 rays. The JSON holds s/frame (median, min,
 max, all), rays/s, field evaluations/s (coarse + (coarse + fine) samples per ray: 256 in the paper config), peak RSS

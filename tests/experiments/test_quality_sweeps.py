@@ -129,3 +129,19 @@ def test_an_unknown_scores_word_is_refused(tmp_path):
                        tmp_path / "out", scores="masked-only")
     with pytest.raises(SweepError, match=r"scores 'masked-only' is not one of masked, full, both"):
         load_sweep(path)
+
+
+def test_quality_images4_sweep_compares_the_images4_configs_on_every_seed(monkeypatch):
+    """configs/sweeps/quality_images4.yaml: grid SimpleNeRF and its DS-NeRF twin at images_4, seeds 0-2, each fit on
+    its own config, each test with the held-out depth; the table reads full-frame scores."""
+    plan = planned("quality_images4", monkeypatch)
+    assert [u.stage for u in plan.units if u.stage in ("dense", "depth", "masks")] == []
+    fits = {u.key: u for u in plan.stage("fit")}
+    configs = {"SimpleNeRF": "configs/grid/simplerf_images4.yaml", "DS-NeRF": "configs/grid/dsnerf_images4.yaml"}
+    assert set(fits) == {f"fern/2v/{model}/seed{seed}" for model in configs for seed in (0, 1, 2)}
+    for key, unit in fits.items():
+        assert configs[unit.labels["model"]] in " ".join(unit.args), key
+    assert len({u.digest for u in fits.values()}) == 6
+    tests = plan.stage("test")
+    assert len(tests) == 6 and all(t.extra.get("heldout_depth") for t in tests)
+    assert plan.stage("table")[0].extra["scores"] == "full"

@@ -253,13 +253,20 @@ def test_realestate_grid_config_fits_on_a_clip(tmp_path):
 
 
 @pytest.mark.parametrize(("simple", "baseline"), [("demo", "demo_dsnerf"), ("simplenerf", "dsnerf"),
-                                                  ("simplerf", "dsnerf"),
+                                                  ("simplerf", "dsnerf"), ("simplerf_images4", "dsnerf_images4"),
                                                   ("realestate_simplenerf", "realestate_dsnerf")])
 def test_grid_dsnerf_configs_are_the_simplenerf_ones_without_the_simplifiers(simple, baseline):
     a = yaml.safe_load((GRID / f"{simple}.yaml").read_text())
     b = yaml.safe_load((GRID / f"{baseline}.yaml").read_text())
     assert len(a["model"]["augmentations"]) == 2 and b["model"]["augmentations"] == []
-    assert b["model"]["objective"]["coarse_fine_mask"] is None and "callbacks" not in b["trainer"]
+    assert b["model"]["objective"]["coarse_fine_mask"] is None
+    # the baseline schedules only what both have (the distortion loss), exactly as SimpleNeRF does
+    schedules_a = a["trainer"]["callbacks"][0]["init_args"]["schedules"]
+    schedules_b = {name: points for callback in b["trainer"].get("callbacks", [])
+                   for name, points in callback["init_args"]["schedules"].items()}
+    assert schedules_b == {name: points for name, points in schedules_a.items() if name.endswith("_distortion")}
+    for key in ("max_steps", "val_check_interval", "limit_val_batches"):
+        assert a["trainer"].get(key) == b["trainer"].get(key)
     for config in (a, b):
         config["model"].pop("augmentations")
         for key in ("coarse_fine_mask", "coarse_fine_weight", "coarse_fine_on_sparse_rays", "supervision",

@@ -23,6 +23,8 @@ import sys
 import time
 from pathlib import Path
 
+import torch
+
 from simplenerf.errors import SimpleNeRFError
 from simplenerf.experiments.plan import Unit
 from simplenerf.experiments.state import checkpoint_steps, job_id, now, read_state, wall_time, write_state
@@ -192,7 +194,10 @@ def run_unit(unit: Unit | dict, raise_on_failure: bool = True) -> str:
         state["fit_ended"] = fit.get("ended")
     write_state(folder, unit.stage, state)
     start = time.monotonic()
-    print(f"sweep job {unit.id} ({folder}), attempt {state['attempts']}", flush=True)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(unit.extra.get("cpus") or threads)  # resources.cpus_per_job (the debug executor: restored)
+    print(f"sweep job {unit.id} ({folder}), attempt {state['attempts']}, {torch.get_num_threads()} CPU thread(s)",
+          flush=True)
     try:
         STAGE_FUNCTIONS[unit.stage](unit)
         state.update(status="done")
@@ -203,6 +208,8 @@ def run_unit(unit: Unit | dict, raise_on_failure: bool = True) -> str:
         state.update(status="failed", error=f"{type(e).__name__}: {text.splitlines()[0] if text else ''}")
         _close(state, folder, unit, start)
         raise
+    finally:
+        torch.set_num_threads(threads)
     _close(state, folder, unit, start)
     if state["status"] == "failed":
         print(f"sweep job {unit.id} failed: {state['error']}", file=sys.stderr, flush=True)

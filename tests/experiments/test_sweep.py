@@ -22,7 +22,7 @@ import yaml
 
 from simplenerf.commands import main
 from simplenerf.experiments.executors import submit_slurm, units_to_run
-from simplenerf.experiments.jobs import run_unit
+from simplenerf.experiments.jobs import JobFailed, run_unit
 from simplenerf.experiments.plan import build_plan
 from simplenerf.experiments.spec import SweepError, load_sweep
 from simplenerf.experiments.state import read_state
@@ -385,6 +385,36 @@ def test_requeue_under_slurm_continues_in_the_same_folder_and_wandb_run(tmp_path
     assert torch.load(folder / "checkpoints" / "last.ckpt", weights_only=False)["global_step"] == 4
     started = sorted(p.name for p in (folder / "wandb").glob("offline-run-*"))
     assert len(started) == 2 and len({wandb_run_id(name) for name in started}) == 1
+
+
+def test_each_job_runs_with_cpus_per_job_threads(tmp_path, monkeypatch):
+    """A job's torch threads are its stage's `cpus_per_job` (as SLURM's --cpus-per-task bounds it): locally,
+    `concurrent_jobs` jobs of all-cores threads each would fight for the cores. The sweep's own process (debug
+    executor) gets its thread count back afterwards, also when the job fails."""
+    configs = tiny_configs(tmp_path / "configs", steps=4)
+    scene = synthetic_scenes(tmp_path / "data", n=1)[0]
+    path = write_sweep(tmp_path / "sweep.yaml", [{"path": str(scene), "reference_depth": "scene"}], [2],
+                       models(configs, names=("DS-NeRF",)), configs, tmp_path / "out",
+                       resources={"cpus_per_job": 3, "stages": {"test": {"cpus_per_job": 2}}})
+    plan = build_plan(load_sweep(path), path)
+    assert {u.stage: u.extra["cpus"] for u in plan.units} == {"masks": 3, "fit": 3, "test": 2, "table": 1}
+    seen = []
+
+    def record(unit):
+        seen.append(torch.get_num_threads())
+        if unit.stage == "test":
+            raise JobFailed("no checkpoint")
+
+    from simplenerf.experiments import jobs
+
+    monkeypatch.setitem(jobs.STAGE_FUNCTIONS, "fit", record)
+    monkeypatch.setitem(jobs.STAGE_FUNCTIONS, "test", record)
+    before = torch.get_num_threads()
+    assert run_unit(next(u for u in plan.units if u.stage == "fit")) == "done"
+    assert torch.get_num_threads() == before
+    with pytest.raises(JobFailed):
+        run_unit(next(u for u in plan.units if u.stage == "test"))
+    assert seen == [3, 2] and torch.get_num_threads() == before
 
 
 def fake_slurm_tool(bin_dir: Path, name: str, output: str) -> None:

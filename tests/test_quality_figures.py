@@ -96,3 +96,18 @@ def test_ray_spread_is_zero_for_a_surface_and_about_a_uniform_fogs_std():
     spread = ray_spread(model_with(fog), frame, every=1)
     assert spread["spread_t"] == pytest.approx((1 / 12 - 1 / 12 / 100**2) ** 0.5, rel=1e-4)  # discrete uniform
     assert spread["off_surface"] == pytest.approx(0.89, abs=0.011)  # all but the 10 or 11 samples within 0.05
+
+
+def test_demo_picture_lays_out_the_panels_with_or_without_exact_depth():
+    from benchmarks.quality.demo_picture import row
+
+    rows, cols = np.mgrid[0:8, 0:12].astype(float)
+    photo = np.repeat((20 * cols)[..., None], 3, axis=-1).astype(np.uint8)
+    depth = 1.0 + rows + cols
+    with_exact = row(photo, photo, depth, photo, depth, exact=depth, zoom=2)
+    assert with_exact.shape == (22 + 16, 5 * 24 + 4 * 4, 3)  # label bar + 2x panels, 4-px gaps
+    llff = row(photo, photo, depth, np.zeros_like(photo), depth, zoom=1, shrink=2)
+    assert llff.shape == (22 + 4, 4 * 6 + 3 * 4, 3)  # photo | SimpleNeRF | its depth | DS-NeRF, shrunk 2x
+    ds_panel = llff[22:, 3 * (6 + 4):]
+    assert (ds_panel == 0).all()  # the last panel is DS-NeRF's render, not a depth
+    assert (llff[22:, 6:10] == 255).all()  # the gap

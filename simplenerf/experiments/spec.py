@@ -131,7 +131,7 @@ class Resources:
     """GPUs per job (SLURM --gpus-per-node; local: that many of this machine's GPUs per job, CUDA_VISIBLE_DEVICES;
     0: a CPU job)."""
     cpus_per_job: int = 1
-    """CPUs per job (SLURM --cpus-per-task)."""
+    """CPUs per job (SLURM --cpus-per-task) and the job's torch threads (local jobs too)."""
     mem_gb: float | None = None
     """Memory per job in GB (SLURM --mem; null: the partition's default)."""
     time_limit_min: int = 60

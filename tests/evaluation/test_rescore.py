@@ -102,6 +102,7 @@ def test_the_tool_rescores_a_cli_run(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     old = json.loads((tmp_path / "run" / "test" / "summary.json").read_text())
     new = json.loads((tmp_path / "run" / "test" / "rescored" / "new.json").read_text())
-    for name in ALL_METRICS:
-        assert new[name] == (pytest.approx(old[name], abs=1e-6) if old[name] is not None else None), name
+    for name in ALL_METRICS:  # the same float32 sums in another order (threads, kernels): a few ulps apart
+        expected = pytest.approx(old[name], rel=1e-6, abs=1e-6) if old[name] is not None else None
+        assert new[name] == expected, name
     assert "| masked_ssim |" in done.stdout

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from simplenerf.data.llff import load_llff_scene
-from simplenerf.viz.pictures import colorize_depth, to_uint8, write_png
+from simplenerf.viz.pictures import colorize_depth, inverse_depth_range, to_uint8, write_png
 
 
 def panel(picture: np.ndarray, label: str, zoom: int, shrink: int = 1) -> np.ndarray:
@@ -50,8 +50,7 @@ def row(photo: np.ndarray, simple_rgb: np.ndarray, simple_depth: np.ndarray, ds_
     exact depth, [photo | SimpleNeRF | SimpleNeRF depth | DS-NeRF depth | exact depth] in the exact depth's range;
     without, [photo | SimpleNeRF | SimpleNeRF depth | DS-NeRF] (the depth in its own range); 4 white pixels between."""
     if exact is not None:
-        inv = 1.0 / exact
-        lo, hi = float(np.percentile(inv, 1)), float(np.percentile(inv, 99))
+        lo, hi = inverse_depth_range(exact)
         items = [(photo, "photo (held out)"), (simple_rgb, "SimpleNeRF"),
                  (colorize_depth(simple_depth, lo, hi), "SimpleNeRF depth"),
                  (colorize_depth(ds_depth, lo, hi), "DS-NeRF depth"), (colorize_depth(exact, lo, hi), "exact depth")]
@@ -78,7 +77,9 @@ def main() -> None:
     simple, ds = Path(args.simplenerf_run) / "test", Path(args.dsnerf_run) / "test"
     scene = load_llff_scene(args.scene, factor=args.factor, n_views=None)  # any split: only the frames are read
     names = [Path(name).stem for name in scene.views.names]
-    index = names.index(args.frame) if args.frame in names else int(args.frame)
+    if args.frame not in names:
+        raise SystemExit(f"demo_picture: no frame {args.frame} in {args.scene} (its frames: {', '.join(names)})")
+    index = names.index(args.frame)
     exact = None if scene.views.depths is None else scene.views.depths[index].numpy()
     frame = f"{args.frame}.npy"
     picture = row(to_uint8(scene.views.images[index].numpy()), read_render(simple, args.frame),
@@ -86,10 +87,7 @@ def main() -> None:
                   exact, args.zoom, args.shrink)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    if out.suffix.lower() in (".jpg", ".jpeg"):
-        cv2.imwrite(str(out), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 85])
-    else:
-        write_png(out, picture)
+    write_png(out, picture, jpeg_quality=85)
     print(out)
 
 

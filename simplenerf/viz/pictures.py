@@ -21,12 +21,21 @@ def grey_picture(values: np.ndarray) -> np.ndarray:
     return np.repeat(to_uint8(values)[..., None], 3, axis=-1)
 
 
+def inverse_depth_range(depth: np.ndarray) -> tuple[float, float]:
+    """The 1st and 99th percentiles of a depth map's [H, W] inverse depth: `colorize_depth`'s default range, to give
+    several maps one range (e.g. that of the exact depth)."""
+    inv = 1.0 / np.maximum(depth, 1e-6)
+    return float(np.percentile(inv, 1)), float(np.percentile(inv, 99))
+
+
 def colorize_depth(depth: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
     """An 8-bit RGB picture [H, W, 3] of a depth map [H, W]: turbo colours of inverse depth (near = warm), from the
     1st to the 99th percentile of inverse depth unless `lo` / `hi` fix the range."""
     inv = 1.0 / np.maximum(depth, 1e-6)
-    lo = float(np.percentile(inv, 1)) if lo is None else lo
-    hi = float(np.percentile(inv, 99)) if hi is None else hi
+    if lo is None or hi is None:
+        own_lo, own_hi = inverse_depth_range(depth)
+        lo = own_lo if lo is None else lo
+        hi = own_hi if hi is None else hi
     scaled = np.clip((inv - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
     return cv2.cvtColor(cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
 
@@ -46,11 +55,13 @@ def mask_picture(mask: torch.Tensor) -> np.ndarray:
     return np.repeat(grey[..., None], 3, axis=-1)
 
 
-def write_png(path: Path, rgb: np.ndarray) -> None:
-    """Writes an RGB image [H, W, 3] (uint8, or float in [0, 1])."""
+def write_png(path: Path, rgb: np.ndarray, jpeg_quality: int = 95) -> None:
+    """Writes an RGB image [H, W, 3] (uint8, or float in [0, 1]): a PNG, or a JPEG of `jpeg_quality` where the path
+    ends in .jpg (OpenCV picks the format by the extension)."""
     if rgb.dtype != np.uint8:
         rgb = to_uint8(rgb)
-    if not cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
+    params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if Path(path).suffix.lower() in (".jpg", ".jpeg") else []
+    if not cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), params):
         raise OSError(f"could not write {path}")
 
 

@@ -130,7 +130,8 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
         """All frames of the scene with the split (of `n_views`, or of `train_frames` when given)."""
 
     def cache_key(self) -> dict:
-        """What identifies this scene's sparse depth besides the train views and the resolution."""
+        """The scene's folder and loading settings, as a run records them (`run.resume`); the sparse-depth cache uses
+        them without the folder, beside the train views, the resolution and a fingerprint of the images and cameras."""
         assert self.scene is not None, "call setup() first"
         return {"scene": str(self.scene.source.resolve())}
 
@@ -165,7 +166,10 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
     def load_sparse_depth(self) -> SparseDepthPool:
         """SfM depth of the train views (poses fixed), computed with pycolmap on first use and cached."""
         train = self.train_views
-        key = {**self.cache_key(), "views": self.scene.split.train, "height": train.height, "width": train.width}
+        # Not keyed by the folder: the cache's fingerprint of the images and cameras identifies the scene, so a moved
+        # or copied scene reuses its SfM result.
+        key = {**{k: v for k, v in self.cache_key().items() if k != "scene"}, "views": self.scene.split.train,
+               "height": train.height, "width": train.width}
         print(f"sparse depth: SfM on train views {self.scene.split.train} of {self.scene.source} "
               f"(cached in {self.sparse_depth_cache}) ...", flush=True)
         per_view = load_or_compute_sparse_depth(self.sparse_depth_cache, key, train.images, train.intrinsics,

@@ -172,3 +172,27 @@ def test_sparse_depth_rays_carry_sfm_depth(tmp_path):
     uv, z = project(points, train.intrinsics[sparse.view], train.c2w[sparse.view])
     assert torch.allclose(z, sparse.depth, rtol=1e-5)
     assert list((tmp_path / "cache").glob("*.json")), "sparse depth was not cached"
+
+
+def test_a_moved_scene_reuses_its_cached_sparse_depth(tmp_path, monkeypatch):
+    """The sparse-depth cache is keyed by the images and cameras, not by the scene's folder: the same scene in another
+    folder loads the cached SfM result instead of running SfM again."""
+    import simplenerf.sfm.sparse_depth as sparse_depth
+    from simplenerf.data.synthetic import SyntheticDataModule
+
+    def module(root):
+        return SyntheticDataModule(root=str(root), height=120, width=160, n_frames=8, n_views=2, rays_per_batch=64,
+                                   sparse_rays_per_batch=64, sparse_depth_cache=str(tmp_path / "cache"))
+
+    first = module(tmp_path / "a")
+    first.setup("fit")
+
+    def no_sfm(*args, **kwargs):
+        raise AssertionError("SfM ran again for a scene already in the cache")
+
+    monkeypatch.setattr(sparse_depth, "compute_sparse_depth", no_sfm)
+    moved = module(tmp_path / "b")
+    moved.setup("fit")
+    assert moved.scene.source != first.scene.source
+    assert torch.equal(moved.sparse_depth.depth, first.sparse_depth.depth)
+    assert len(list((tmp_path / "cache").glob("*.npz"))) == 1

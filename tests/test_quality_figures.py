@@ -1,11 +1,13 @@
-"""The figures of benchmarks/quality/ that score a run's maps: texture printed into depth
+"""The figures of benchmarks/quality/ that score a run's maps and masks: texture printed into depth
 (benchmarks.quality.texture_in_depth) on a hand-made plane with one edge, and streaks along the image axes
-(benchmarks.quality.streak_index) on hand-made maps."""
+(benchmarks.quality.streak_index) on hand-made maps, a reliability mask against SfM depth
+(benchmarks.quality.mask_accuracy) on hand-made depths."""
 
 import cv2
 import numpy as np
 import pytest
 
+from benchmarks.quality.mask_accuracy import pair_scores
 from benchmarks.quality.streak_index import axis_ratio, streak_index
 from benchmarks.quality.texture_in_depth import flat_pixels, score
 
@@ -111,3 +113,22 @@ def test_demo_picture_lays_out_the_panels_with_or_without_exact_depth():
     ds_panel = llff[22:, 3 * (6 + 4):]
     assert (ds_panel == 0).all()  # the last panel is DS-NeRF's render, not a depth
     assert (llff[22:, 6:10] == 255).all()  # the gap
+
+
+def test_mask_precision_counts_where_the_chosen_depth_is_the_closer_one():
+    z_sfm = np.full(6, 10.0)
+    z_main = np.array([10.0, 10.0, 12.0, 10.1, 13.0, 10.0])
+    z_other = np.array([11.0, 9.0, 10.0, 10.0, 10.0, 10.5])  # closer to SfM on rays 2, 3 and 4
+    mask = np.array([1, -1, 1, 1, -1, 0])  # +1 right on rays 2 and 3, wrong on 0; -1 right on 1, wrong on 4
+    s = pair_scores(z_main, z_other, z_sfm, mask, disagree=0.05)
+    assert s["rays"] == 6 and s["oracle_other_closer"] == pytest.approx(3 / 6)
+    assert (s["share_plus"], s["share_minus"], s["share_zero"]) == pytest.approx((3 / 6, 2 / 6, 1 / 6))
+    assert s["precision_plus"] == pytest.approx(2 / 3) and s["precision_minus"] == pytest.approx(1 / 2)
+    assert s["error_main_plus"] == pytest.approx((0.0 + 0.2 + 0.01) / 3)
+    assert s["error_other_plus"] == pytest.approx((0.1 + 0.0 + 0.0) / 3)
+    assert (s["error_main_minus"], s["error_other_minus"]) == pytest.approx(((0.0 + 0.3) / 2, (0.1 + 0.0) / 2))
+    # the depths differ by more than 5% of the SfM depth on rays 0, 1, 2, 4 (not 3: 1%, nor 5: exactly 5%)
+    apart = s["disagree"]
+    assert apart["share"] == pytest.approx(4 / 6) and apart["rays"] == 4
+    assert apart["precision_plus"] == pytest.approx(1 / 2) and apart["precision_minus"] == pytest.approx(1 / 2)
+    assert np.isnan(pair_scores(z_main[:1], z_other[:1], z_sfm[:1], np.zeros(1, int))["precision_plus"])

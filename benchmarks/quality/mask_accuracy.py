@@ -1,0 +1,119 @@
+"""Are a trained run's reliability masks right? (docs/results.md "Where the blur and the streaks come from", 10.)
+
+A mask (paper Sec. 4.2) decides per ray which of two depths supervises the other: +1, the other depth (an
+augmentation's, or for L_cfc the main fine one) trains the main one; -1, the reverse; 0, neither. This scores that
+decision against an independent depth: SfM keypoints of the TRAIN views triangulated, poses fixed, from all the
+non-test frames (`evaluation.heldout_depth.reference_observations`, the held-out depth's reference, which also sees
+the frames the model never saw). At those keypoints the run renders every depth as in training (deterministic
+samples), each depth pair gets the mask the training step would give it, and for each pair this prints:
+
+- the share of +1, -1 and 0;
+- precision: on +1 rays the share where the other depth is the closer one to SfM; on -1 rays, the main depth;
+- the mean relative depth error |z - z_sfm| / z_sfm of both depths on the +1 and on the -1 rays;
+- the oracle: on all rays, the share where the other depth is the closer one;
+- the same on the rays where the two depths differ by more than 5% of the SfM depth, where the choice matters.
+
+A mask at chance has a precision near the oracle's share; a mask worth its loss, well above it.
+
+    python -m benchmarks.quality.mask_accuracy RUN [--cache DIR] [--ckpt_path CKPT] [-- CLI overrides]
+
+RUN is a run folder (config.yaml, checkpoints/last.ckpt); `--cache` is where the SfM reference is cached (a sweep's
+runs: <sweep>/cache/sparse_depth, where its held-out depth put it). Prints one JSON line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from simplenerf.commands import split_overrides
+from simplenerf.data.batches import RayBatch
+from simplenerf.evaluation.heldout_depth import reference_observations
+from simplenerf.run.cli import make_cli
+
+
+def _mean(values: np.ndarray) -> float:
+    """The mean of an array, nan when it is empty."""
+    return float(values.mean()) if values.size else float("nan")
+
+
+def pair_scores(z_main: np.ndarray, z_other: np.ndarray, z_sfm: np.ndarray, mask: np.ndarray,
+                disagree: float = 0.05) -> dict[str, float]:
+    """The scores of one mask [R] (values -1, 0, +1) for depths z_main, z_other [R] against z_sfm [R].
+
+    Returns shares of each mask value, the precision of +1 (other closer where +1) and of -1 (main closer where -1),
+    the mean relative errors of both depths on the +1 and the -1 rays (nan where a value has no ray), the oracle
+    share (other closer, all rays), and under "disagree" the same on the rays where the two depths differ by more than
+    `disagree` of the SfM depth (where the mask's choice matters: elsewhere either depth is about as good)."""
+    e_main, e_other = np.abs(z_main - z_sfm) / z_sfm, np.abs(z_other - z_sfm) / z_sfm
+    other_closer = e_other < e_main
+    plus, minus = mask == 1, mask == -1
+    scores: dict = {"rays": int(len(mask)), "oracle_other_closer": _mean(other_closer)}
+    for value, label in ((1, "plus"), (-1, "minus"), (0, "zero")):
+        scores[f"share_{label}"] = _mean(mask == value)
+    scores["precision_plus"], scores["precision_minus"] = _mean(other_closer[plus]), _mean(~other_closer[minus])
+    for rays, label in ((plus, "plus"), (minus, "minus")):
+        scores[f"error_main_{label}"], scores[f"error_other_{label}"] = _mean(e_main[rays]), _mean(e_other[rays])
+    if disagree:
+        apart = np.abs(z_main - z_other) / z_sfm > disagree
+        scores["disagree"] = {"share": float(apart.mean()),
+                              **pair_scores(z_main[apart], z_other[apart], z_sfm[apart], mask[apart], disagree=0)}
+    return scores
+
+
+@torch.no_grad()
+def mask_accuracy(model, scene, near: float, cache: str, chunk: int = 4096) -> dict[str, dict[str, float]]:
+    """`pair_scores` of every masked depth pair of `model` (each augmentation with its main depth, and L_cfc) at the
+    reference SfM keypoints of the train views of `scene`."""
+    train = scene.split.train
+    views = scene.views.subset(train)
+    observations = reference_observations(scene, cache, str(scene.source.resolve()))
+    view, uv, z_sfm = [], [], []
+    for local, frame in enumerate(train):
+        sd = observations.get(frame)
+        if sd is not None:
+            view.append(torch.full((len(sd),), local))
+            uv.append(torch.from_numpy(sd.pixels).to(views.c2w.dtype))
+            z_sfm.append(sd.depth)
+    view, uv = torch.cat(view), torch.cat(uv)
+    rays = RayBatch(views.rays(view, uv, near), torch.zeros(len(view), 3, dtype=uv.dtype), view, uv)
+    render = model.nerf.render_rays_chunked(rays.rays, chunk, model.augmentations)
+    depths = {"fine": render.depth, "coarse": render.coarse_depth, **render.augmented_depth}
+    pairs = [(aug.name, aug.mask, aug.stage, aug.name) for aug in model.augmentations if aug.mask is not None]
+    if model.objective.coarse_fine_mask is not None:
+        pairs.append(("cfc", model.objective.coarse_fine_mask, "coarse", "fine"))
+    z_sfm = np.concatenate(z_sfm)
+    result = {}
+    for name, mask, main, other in pairs:
+        m = mask(views, rays, depths[main], depths[other])
+        m = torch.ones_like(depths[main]) if m is None else m
+        result[name] = {"main": main, "other": other,
+                        **pair_scores(depths[main].double().numpy(), depths[other].double().numpy(), z_sfm,
+                                      m.round().long().numpy())}
+    return result
+
+
+def main() -> None:
+    own, overrides = split_overrides(sys.argv[1:])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("run", type=Path)
+    parser.add_argument("--cache", default="data/cache/sparse_depth", help="where the SfM reference is cached")
+    parser.add_argument("--ckpt_path", type=Path, help="the checkpoint to load (default: RUN/checkpoints/last.ckpt)")
+    args = parser.parse_args(own)
+    cli = make_cli(["--config", str(args.run / "config.yaml"), "--trainer.logger", "false", *overrides], run=False)
+    model, data = cli.model, cli.datamodule
+    state = torch.load(args.ckpt_path or args.run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    model.load_state_dict(state["state_dict"])
+    model.eval()
+    data.setup("test")
+    result = mask_accuracy(model, data.scene, data.near, args.cache, model.hparams.chunk)
+    print(json.dumps({"run": str(args.run), "checkpoint": str(args.ckpt_path or "last"), "pairs": result}))
+
+
+if __name__ == "__main__":
+    main()

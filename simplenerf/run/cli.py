@@ -34,6 +34,7 @@ from simplenerf.errors import DataError, SimpleNeRFError, Stopped, TrainingDiver
 from simplenerf.evaluation.evaluator import Evaluator
 from simplenerf.method.module import SimpleNeRF
 from simplenerf.metrics.lpips import LPIPSWeightsNotFound
+from simplenerf.model.fields import RadianceField
 from simplenerf.run import hardware, signals
 from simplenerf.run.callbacks import (
     Checkpointing,
@@ -257,7 +258,12 @@ class SimpleNeRFCLI(LightningCLI):
             release_run_folder(run_folder)  # a folder this command created is removed again
             raise
         self._held_logs.release()
-        hardware.announce(self.trainer.precision, self.trainer.strategy.root_device)  # once: rank 0 prints it
+        device = self.trainer.strategy.root_device
+        hardware.announce(self.trainer.precision, device)  # once: rank 0 prints it
+        mlp = any(isinstance(f, RadianceField) for f in (self.model.nerf.coarse, self.model.nerf.fine))
+        if subcommand == "fit" and rank_zero_only.rank == 0 and (
+                hint := hardware.cpu_budget_hint(device, mlp, self.trainer.max_steps)):
+            print(f"simplenerf: {hint}", file=sys.stderr, flush=True)
         signals.at_step_end = subcommand == "fit"  # a test frame can take minutes: test stops at once
         scene = data.scene if data is not None else None
         self._render_instead = subcommand == "test" and scene is not None and not scene.split.test

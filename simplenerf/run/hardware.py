@@ -179,6 +179,22 @@ def announce(precision: str, device: torch.device, stream: TextIO | None = None,
     return warning
 
 
+# Above this many steps an MLP fit is a GPU's budget (the paper's configs: 100k steps, 2-8 s a step on this project's
+# CPUs, docs/benchmarks.md): on a CPU, days.
+GPU_BUDGET_STEPS = 20000
+
+
+def cpu_budget_hint(device: torch.device, mlp_fields: bool, max_steps: int | None) -> str | None:
+    """The line (without the program's prefix) that points a CPU fit of the paper's MLP at a GPU's budget to the
+    grid configs, else None: `mlp_fields`, the main NeRF has an MLP field (`model.fields.RadianceField`)."""
+    if device.type != "cpu" or not mlp_fields or max_steps is None or max_steps <= GPU_BUDGET_STEPS:
+        return None
+    return (f"this fit trains the paper's MLP fields for {max_steps} steps, a GPU's budget: on a CPU that takes days "
+            "(the progress line's eta says how many). Without a GPU, train the grid instead: "
+            "configs/grid/simplerf_images4.yaml, at the paper's resolution in about an hour of one CPU thread "
+            "(README, \"Your own photos\")")
+
+
 def machine_record(device: torch.device | None = None) -> dict:
     """The machine as the fields of a benchmark's JSON: CPU model and capability, torch's dispatch, and the GPU model
     and compute capability (None without a GPU; `device`: the one measured, default CUDA's current one if any)."""

@@ -113,3 +113,22 @@ def test_fit_in_fp32_names_the_cpu_without_a_warning(tmp_path, monkeypatch, caps
     err = capsys.readouterr().err
     assert f"simplenerf: {cpu.line()}; precision 32-true\n" in err
     assert "simplenerf: warning: precision" not in err
+    assert "a GPU's budget" not in err  # one step of the demo's MLP
+
+
+def test_a_cpu_fit_of_mlp_fields_past_the_budget_names_the_grid_config_before_the_first_step(
+        tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(hardware, "GPU_BUDGET_STEPS", 0)  # the demo's MLP fields, one step past a budget of 0
+    make_cli(["fit", *run_args(tmp_path), "--trainer.max_steps", "1", "--trainer.logger", "false"])
+    hint = hardware.cpu_budget_hint(torch.device("cpu"), True, 1)
+    assert capsys.readouterr().err.splitlines().count(f"simplenerf: {hint}") == 1
+
+
+def test_a_cpu_fit_of_the_papers_mlp_at_a_gpus_budget_points_to_the_grid():
+    cpu, cuda = torch.device("cpu"), torch.device("cuda", 0)
+    hint = hardware.cpu_budget_hint(cpu, True, 100000)
+    assert hint is not None and "100000 steps" in hint and "configs/grid/simplerf_images4.yaml" in hint
+    assert hardware.cpu_budget_hint(cuda, True, 100000) is None  # a GPU's budget on a GPU
+    assert hardware.cpu_budget_hint(cpu, False, 100000) is None  # the grid on a CPU
+    assert hardware.cpu_budget_hint(cpu, True, hardware.GPU_BUDGET_STEPS) is None  # a short MLP fit
+    assert hardware.cpu_budget_hint(cpu, True, None) is None  # no step budget (max_epochs)

@@ -128,6 +128,7 @@ class SimpleNeRF(L.LightningModule):
         fields = {"coarse": self.nerf.coarse, "fine": self.nerf.fine, **{a.name: a.field for a in self.augmentations}}
         # The terms by name; `run.callbacks.LossWeightSchedule` sets their weights per step (the warm-up).
         self.terms: dict[str, Term] = build_terms(objective, list(self.augmentations), fields)
+        self.part_values: dict[str, torch.Tensor] = {}  # the terms' values in the part being backpropagated
         self.train_views: Views | None = None  # what the reliability masks look at (`set_train_views`)
 
     @property
@@ -182,6 +183,7 @@ class SimpleNeRF(L.LightningModule):
         for i, part in enumerate(parts):
             rendered = self.render_part(part)
             result = part_loss(self.terms, rendered, regularize=i == len(parts) - 1)
+            self.part_values = result.values  # what `StopOnNonFiniteLoss` names when this part's loss is not finite
             if result.loss.requires_grad:  # (not when every term this part's rays feed has weight 0)
                 backward(result.loss)  # frees this part's activations before the next part is rendered
             total = total + result.loss.detach()

@@ -39,3 +39,11 @@ def test_a_non_finite_loss_stops_before_its_backward_pass():
         with pytest.raises(TrainingDiverged, match=f"^training stopped at step 4: the loss is {value}$"):
             guard.on_before_backward(trainer, None, torch.tensor(value))
     assert TrainingDiverged.exit_status == 1
+    # the module's terms of the part being backpropagated: the line names those whose weighted value is not finite
+    module = SimpleNamespace(part_values={"color": torch.tensor(0.1), "points": torch.tensor(float("nan")),
+                                          "views": torch.tensor(float("inf")), "cfc": torch.tensor(0.2)},
+                             terms={name: SimpleNamespace(weight=w) for name, w in
+                                    (("color", 1.0), ("points", 0.1), ("views", 1.0), ("cfc", float("nan")))})
+    with pytest.raises(TrainingDiverged, match=r"^training stopped at step 4: the loss is nan \(non-finite: points, "
+                                               r"views, cfc\)$"):
+        guard.on_before_backward(trainer, module, torch.tensor(float("nan")))

@@ -277,8 +277,8 @@ def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(shared, tmp_path):
     assert proc.returncode == 1
     last = tmp_path / "run" / "checkpoints" / "last.ckpt"
     assert error_lines(proc)[-1] == (
-        f"{ERROR}training stopped at step 6: the loss is nan; the checkpoints written before it are kept (resume from "
-        f"{last}, step 4)"
+        f"{ERROR}training stopped at step 6: the loss is nan (non-finite: color); the checkpoints written before it "
+        f"are kept (resume from {last}, step 4)"
     )
     assert "Traceback" not in proc.stderr
     checkpoint = torch.load(last, map_location="cpu", weights_only=False)

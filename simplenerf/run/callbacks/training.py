@@ -118,7 +118,16 @@ class StopOnNonFiniteLoss(L.Callback):
             bad = trainer.strategy.reduce_boolean_decision(bad, all=False)
         if bad:
             raise TrainingDiverged(f"training stopped at step {trainer.global_step + 1}: the loss is "
-                                   f"{loss.detach().float().item()}")
+                                   f"{loss.detach().float().item()}{non_finite_terms(pl_module)}")
+
+
+def non_finite_terms(module) -> str:
+    """" (non-finite: color, points)": the terms whose weighted value in the part being backpropagated is NaN or
+    infinite (`SimpleNeRF.part_values`, `SimpleNeRF.terms`), or "" when none is or the module does not say."""
+    values, terms = getattr(module, "part_values", None) or {}, getattr(module, "terms", None) or {}
+    bad = [name for name, value in values.items()
+           if name in terms and not bool(torch.isfinite(terms[name].weight * value).all())]
+    return f" (non-finite: {', '.join(bad)})" if bad else ""
 
 
 class TrainingProgressBar(RichProgressBar):

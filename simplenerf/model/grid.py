@@ -21,6 +21,8 @@ Naming, used throughout:
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -35,12 +37,15 @@ PLANE_NAMES = ("xy", "xz", "yz")
 
 
 class _TruncExp(torch.autograd.Function):
-    """exp(x) whose gradient uses exp(clamp(x, max=15)): large densities stay trainable without exploding steps."""
+    """exp(x) whose gradient uses exp(clamp(x, max=15)): large densities stay trainable without exploding steps. The
+    value is exp(x) up to a factor e below the largest finite one of x's dtype (x clamped at its log - 1): an infinite
+    density times a zero interval would make the ray's weights NaN (a 3600-step fern fit, docs/results.md "Grid
+    backbone")."""
 
     @staticmethod
     def forward(ctx, x: torch.Tensor) -> torch.Tensor:
         ctx.save_for_backward(x)
-        return torch.exp(x)
+        return torch.exp(x.clamp(max=math.log(torch.finfo(x.dtype).max) - 1.0))
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor) -> torch.Tensor:

@@ -11,6 +11,7 @@ import yaml
 
 from simplenerf.model.fields import Field
 from simplenerf.model.grid import KPlanesField, plane_tv, sample_plane, trunc_exp
+from simplenerf.model.rendering import compute_weights
 from simplenerf.model.samples import Samples
 from tests.conftest import REPO
 from tests.data.test_realestate import write_clip
@@ -172,6 +173,16 @@ def test_trunc_exp_clamps_its_gradient_only():
     torch.testing.assert_close(y, torch.exp(x.detach()))
     y.sum().backward()
     torch.testing.assert_close(x.grad, torch.exp(torch.tensor([0.0, 2.0, 15.0])))
+
+
+def test_trunc_exp_of_a_huge_input_is_finite_so_a_zero_interval_has_zero_weight():
+    x = torch.tensor([[1.0, 100.0, 100.0]], requires_grad=True)  # exp(100) overflows float32
+    sigma = trunc_exp(x)
+    assert bool(torch.isfinite(sigma).all()) and sigma[0, 1] > torch.finfo(sigma.dtype).max / 3
+    weights = compute_weights(sigma, torch.tensor([[0.5, 0.0, 0.5]]))  # the dense point on a zero-length interval
+    assert bool(torch.isfinite(weights).all()) and weights[0, 1] == 0.0
+    weights.sum().backward()
+    assert bool(torch.isfinite(x.grad).all())
 
 
 def test_bad_sizes_are_errors():

@@ -34,7 +34,8 @@ import torch
 from simplenerf.commands import split_overrides
 from simplenerf.data.batches import RayBatch
 from simplenerf.evaluation.heldout_depth import reference_observations
-from simplenerf.run.cli import make_cli
+from simplenerf.method.reliability import ReprojectionErrors
+from simplenerf.run.cli import load_for_tool
 
 
 def _mean(values: np.ndarray) -> float:
@@ -84,13 +85,14 @@ def mask_accuracy(model, scene, near: float, cache: str, chunk: int = 4096) -> d
     rays = RayBatch(views.rays(view, uv, near), torch.zeros(len(view), 3, dtype=uv.dtype), view, uv)
     render = model.nerf.render_rays_chunked(rays.rays, chunk, model.augmentations)
     depths = {"fine": render.depth, "coarse": render.coarse_depth, **render.augmented_depth}
-    pairs = [(aug.name, aug.mask, aug.stage, aug.name) for aug in model.augmentations if aug.mask is not None]
+    pairs = [(aug.name, aug.mask, aug.stage, aug.name) for aug in model.augmentations]
     if model.objective.coarse_fine_mask is not None:
         pairs.append(("cfc", model.objective.coarse_fine_mask, "coarse", "fine"))
     z_sfm = np.concatenate(z_sfm)
+    errors = ReprojectionErrors(views, rays)  # as in a training step: each depth's patch error computed once
     result = {}
     for name, mask, main, other in pairs:
-        m = mask(views, rays, depths[main], depths[other])
+        m = mask.judge(errors, main, depths[main], other, depths[other])
         m = torch.ones_like(depths[main]) if m is None else m
         result[name] = {"main": main, "other": other,
                         **pair_scores(depths[main].double().numpy(), depths[other].double().numpy(), z_sfm,
@@ -105,12 +107,9 @@ def main() -> None:
     parser.add_argument("--cache", default="data/cache/sparse_depth", help="where the SfM reference is cached")
     parser.add_argument("--ckpt_path", type=Path, help="the checkpoint to load (default: RUN/checkpoints/last.ckpt)")
     args = parser.parse_args(own)
-    cli = make_cli(["--config", str(args.run / "config.yaml"), "--trainer.logger", "false", *overrides], run=False)
+    ckpt = args.ckpt_path or args.run / "checkpoints" / "last.ckpt"
+    cli = load_for_tool([str(args.run / "config.yaml")], overrides, ckpt=str(ckpt))
     model, data = cli.model, cli.datamodule
-    state = torch.load(args.ckpt_path or args.run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
-    model.load_state_dict(state["state_dict"])
-    model.eval()
-    data.setup("test")
     result = mask_accuracy(model, data.scene, data.near, args.cache, model.hparams.chunk)
     print(json.dumps({"run": str(args.run), "checkpoint": str(args.ckpt_path or "last"), "pairs": result}))
 

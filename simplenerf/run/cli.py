@@ -260,10 +260,10 @@ class SimpleNeRFCLI(LightningCLI):
         self._held_logs.release()
         device = self.trainer.strategy.root_device
         hardware.announce(self.trainer.precision, device)  # once: rank 0 prints it
-        mlp = any(isinstance(f, RadianceField) for f in (self.model.nerf.coarse, self.model.nerf.fine))
-        if subcommand == "fit" and rank_zero_only.rank == 0 and (
-                hint := hardware.cpu_budget_hint(device, mlp, self.trainer.max_steps)):
-            print(f"simplenerf: {hint}", file=sys.stderr, flush=True)
+        if subcommand == "fit" and rank_zero_only.rank == 0:
+            mlp = any(isinstance(f, RadianceField) for f in (self.model.nerf.coarse, self.model.nerf.fine))
+            if hint := hardware.cpu_budget_hint(device, mlp, self.trainer.max_steps):
+                print(f"simplenerf: {hint}", file=sys.stderr, flush=True)
         signals.at_step_end = subcommand == "fit"  # a test frame can take minutes: test stops at once
         scene = data.scene if data is not None else None
         self._render_instead = subcommand == "test" and scene is not None and not scene.split.test

@@ -73,7 +73,7 @@ def mask_accuracy(model, scene, near: float, cache: str, chunk: int = 4096) -> d
     reference SfM keypoints of the train views of `scene`."""
     train = scene.split.train
     views = scene.views.subset(train)
-    observations = reference_observations(scene, cache, str(scene.source.resolve()))
+    observations = reference_observations(scene, cache)
     view, uv, z_sfm = [], [], []
     for local, frame in enumerate(train):
         sd = observations.get(frame)

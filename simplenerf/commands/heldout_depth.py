@@ -40,7 +40,7 @@ def main(argv: Sequence[str]) -> None:
         lock_output(Path(args.out))  # e.g. <run>/heldout_depth.json: not while a fit or test writes that run
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt_path)
     dm, model = cli.datamodule, cli.model
-    observations = heldout_observations(dm.scene, args.cache, str(dm.scene.source.resolve()))
+    observations = heldout_observations(dm.scene, args.cache)
     result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk)
     line = json.dumps({"ckpt": args.ckpt_path, "overrides": overrides, **result})
     print(line)

@@ -20,22 +20,23 @@ if TYPE_CHECKING:
     from simplenerf.method.module import SimpleNeRF
 
 
-def reference_observations(scene: Scene, cache_dir: str, scene_key: str) -> dict[int, SparseDepth]:
+def reference_observations(scene: Scene, cache_dir: str) -> dict[int, SparseDepth]:
     """SfM observations (frame index -> keypoints and depths) triangulated, poses fixed, from all the non-test frames,
-    train frames included; cached in `cache_dir`."""
+    train frames included; cached in `cache_dir`, keyed by the images and cameras (not the folder: a moved scene
+    reuses its cached reference, as the training sparse depth does)."""
     test = set(scene.split.test)
     reference_frames = [i for i in range(len(scene.views)) if i not in test]
     views = scene.views.subset(reference_frames)
-    key = {"scene": scene_key, "views": reference_frames, "height": views.height, "width": views.width,
+    key = {"views": reference_frames, "height": views.height, "width": views.width,
            "purpose": "held-out reference"}
     per_view = load_or_compute_sparse_depth(cache_dir, key, views.images, views.intrinsics, views.c2w)
     return {frame: sd for frame, sd in zip(reference_frames, per_view, strict=True) if len(sd)}
 
 
-def heldout_observations(scene: Scene, cache_dir: str, scene_key: str) -> dict[int, SparseDepth]:
+def heldout_observations(scene: Scene, cache_dir: str) -> dict[int, SparseDepth]:
     """`reference_observations` in the held-out frames (neither train nor test)."""
     train = set(scene.split.train)
-    return {frame: sd for frame, sd in reference_observations(scene, cache_dir, scene_key).items()
+    return {frame: sd for frame, sd in reference_observations(scene, cache_dir).items()
             if frame not in train}
 
 

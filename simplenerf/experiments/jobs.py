@@ -120,7 +120,7 @@ def _heldout_depth(unit: Unit) -> None:
     try:
         cli = load_for_tool([], unit.args, ckpt=str(ckpt), device=_device())
         dm, model = cli.datamodule, cli.model
-        observations = heldout_observations(dm.scene, unit.extra["heldout_cache"], str(dm.scene.source.resolve()))
+        observations = heldout_observations(dm.scene, unit.extra["heldout_cache"])
         result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk)
     except SimpleNeRFError as e:
         raise JobFailed(f"held-out depth: {type(e).__name__}: {e}") from None

@@ -36,3 +36,28 @@ def test_every_rendered_depth_is_scored_at_the_keypoints(tmp_path):
     assert result["rel_error_mean"] == pytest.approx(0.5, rel=1e-6) and result["points"] == 5 and result["frames"] == 1
     # the augmented fields differ from the main ones, so their errors do too
     assert result["depths"]["points"]["rel_error_mean"] != result["depths"]["coarse"]["rel_error_mean"]
+
+
+def test_a_moved_scene_reuses_its_cached_heldout_reference(tmp_path, monkeypatch):
+    """The held-out reference (SfM from every non-test frame) is cached by the images and cameras, not by the scene's
+    folder: the same scene in another folder loads it instead of running SfM again."""
+    import simplenerf.sfm.sparse_depth as sparse_depth
+    from simplenerf.evaluation.heldout_depth import heldout_observations
+
+    def scene(root):
+        dm = SyntheticDataModule(root=str(root), height=120, width=160, n_frames=8, n_views=2,
+                                 sparse_rays_per_batch=0)
+        dm.setup("test")
+        return dm.scene
+
+    first = heldout_observations(scene(tmp_path / "a"), str(tmp_path / "cache"))
+    assert first, "the synthetic scene gives no held-out SfM points"
+
+    def no_sfm(*args, **kwargs):
+        raise AssertionError("SfM ran again for a scene already in the cache")
+
+    monkeypatch.setattr(sparse_depth, "compute_sparse_depth", no_sfm)
+    moved = heldout_observations(scene(tmp_path / "b"), str(tmp_path / "cache"))
+    assert sorted(moved) == sorted(first)
+    assert all(np.array_equal(moved[f].depth, first[f].depth) for f in first)
+    assert len(list((tmp_path / "cache").glob("*.npz"))) == 1

@@ -106,13 +106,25 @@ def test_demo_picture_lays_out_the_panels_with_or_without_exact_depth():
     rows, cols = np.mgrid[0:8, 0:12].astype(float)
     photo = np.repeat((20 * cols)[..., None], 3, axis=-1).astype(np.uint8)
     depth = 1.0 + rows + cols
-    with_exact = row(photo, photo, depth, photo, depth, exact=depth, zoom=2)
+    with_exact = row(photo, photo, depth, None, depth, exact=depth, zoom=2)  # DS-NeRF's render unused
     assert with_exact.shape == (22 + 16, 5 * 24 + 4 * 4, 3)  # label bar + 2x panels, 4-px gaps
-    llff = row(photo, photo, depth, np.zeros_like(photo), depth, zoom=1, shrink=2)
+    llff = row(photo, photo, depth, np.zeros_like(photo), None, zoom=1, shrink=2)  # its depth unused
     assert llff.shape == (22 + 4, 4 * 6 + 3 * 4, 3)  # photo | SimpleNeRF | its depth | DS-NeRF, shrunk 2x
     ds_panel = llff[22:, 3 * (6 + 4):]
     assert (ds_panel == 0).all()  # the last panel is DS-NeRF's render, not a depth
     assert (llff[22:, 6:10] == 255).all()  # the gap
+
+
+def test_a_depth_is_coloured_over_its_own_inverse_depth_percentiles_unless_given_a_range():
+    from simplenerf.viz.pictures import colorize_depth, inverse_depth_range
+
+    depth = np.linspace(1.0, 10.0, 200).reshape(10, 20)
+    lo, hi = inverse_depth_range(depth)
+    assert (lo, hi) == (np.percentile(1 / depth, 1), np.percentile(1 / depth, 99))
+    own = colorize_depth(depth)
+    assert np.array_equal(own, colorize_depth(depth, lo, hi))
+    assert np.array_equal(own[0, 0], colorize_depth(np.array([[0.5]]), lo, hi)[0, 0])  # nearest: clipped to the top
+    assert not np.array_equal(own, colorize_depth(depth, lo, 2 * hi))
 
 
 def test_mask_precision_counts_where_the_chosen_depth_is_the_closer_one():

@@ -44,11 +44,12 @@ def read_render(run_test: Path, frame: str) -> np.ndarray:
     return cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
 
 
-def row(photo: np.ndarray, simple_rgb: np.ndarray, simple_depth: np.ndarray, ds_rgb: np.ndarray,
-        ds_depth: np.ndarray, exact: np.ndarray | None = None, zoom: int = 2, shrink: int = 1) -> np.ndarray:
+def row(photo: np.ndarray, simple_rgb: np.ndarray, simple_depth: np.ndarray, ds_rgb: np.ndarray | None,
+        ds_depth: np.ndarray | None, exact: np.ndarray | None = None, zoom: int = 2, shrink: int = 1) -> np.ndarray:
     """The picture [H', W', 3] uint8 from one frame's photo and renders [H, W, 3] uint8 and depths [H, W]: with the
-    exact depth, [photo | SimpleNeRF | SimpleNeRF depth | DS-NeRF depth | exact depth] in the exact depth's range;
-    without, [photo | SimpleNeRF | SimpleNeRF depth | DS-NeRF] (the depth in its own range); 4 white pixels between."""
+    exact depth, [photo | SimpleNeRF | SimpleNeRF depth | DS-NeRF depth | exact depth] in the exact depth's range
+    (`ds_rgb` unused); without, [photo | SimpleNeRF | SimpleNeRF depth | DS-NeRF] (the depth in its own range;
+    `ds_depth` unused); 4 white pixels between."""
     if exact is not None:
         lo, hi = inverse_depth_range(exact)
         items = [(photo, "photo (held out)"), (simple_rgb, "SimpleNeRF"),
@@ -82,9 +83,10 @@ def main() -> None:
     index = names.index(args.frame)
     exact = None if scene.views.depths is None else scene.views.depths[index].numpy()
     frame = f"{args.frame}.npy"
+    ds_rgb = read_render(ds, args.frame) if exact is None else None  # the layout shows DS-NeRF's render or depth
+    ds_depth = np.load(ds / "depth" / frame) if exact is not None else None
     picture = row(to_uint8(scene.views.images[index].numpy()), read_render(simple, args.frame),
-                  np.load(simple / "depth" / frame), read_render(ds, args.frame), np.load(ds / "depth" / frame),
-                  exact, args.zoom, args.shrink)
+                  np.load(simple / "depth" / frame), ds_rgb, ds_depth, exact, args.zoom, args.shrink)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_png(out, picture, jpeg_quality=85)

@@ -24,16 +24,23 @@ def grey_picture(values: np.ndarray) -> np.ndarray:
 def inverse_depth_range(depth: np.ndarray) -> tuple[float, float]:
     """The 1st and 99th percentiles of a depth map's [H, W] inverse depth: `colorize_depth`'s default range, to give
     several maps one range (e.g. that of the exact depth)."""
-    inv = 1.0 / np.maximum(depth, 1e-6)
+    return _percentile_range(_inverse(depth))
+
+
+def _inverse(depth: np.ndarray) -> np.ndarray:
+    return 1.0 / np.maximum(depth, 1e-6)
+
+
+def _percentile_range(inv: np.ndarray) -> tuple[float, float]:
     return float(np.percentile(inv, 1)), float(np.percentile(inv, 99))
 
 
 def colorize_depth(depth: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
     """An 8-bit RGB picture [H, W, 3] of a depth map [H, W]: turbo colours of inverse depth (near = warm), from the
     1st to the 99th percentile of inverse depth unless `lo` / `hi` fix the range."""
-    inv = 1.0 / np.maximum(depth, 1e-6)
+    inv = _inverse(depth)
     if lo is None or hi is None:
-        own_lo, own_hi = inverse_depth_range(depth)
+        own_lo, own_hi = _percentile_range(inv)
         lo = own_lo if lo is None else lo
         hi = own_hi if hi is None else hi
     scaled = np.clip((inv - lo) / max(hi - lo, 1e-12), 0.0, 1.0)

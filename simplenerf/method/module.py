@@ -130,6 +130,9 @@ class SimpleNeRF(L.LightningModule):
         self.terms: dict[str, Term] = build_terms(objective, list(self.augmentations), fields)
         self.part_values: dict[str, torch.Tensor] = {}  # the terms' values in the part being backpropagated
         self.train_views: Views | None = None  # what the reliability masks look at (`set_train_views`)
+        # Augmentations that training no longer renders: their own terms (masked depth, concentration) are 0 for
+        # the rest of the run, so nothing they render reaches the main model again (set by LossWeightSchedule).
+        self.retired: frozenset[str] = frozenset()
 
     @property
     def coarse_fine_mask(self) -> ReliabilityMask | None:
@@ -153,11 +156,17 @@ class SimpleNeRF(L.LightningModule):
                                       "model.set_train_views(datamodule.train_views) before trainer.fit")
             self.train_views = self.train_views.to(self.device)
 
-    def render(self, rays, randomized: bool, color: bool = True) -> Renders:
-        """The main NeRF and every augmentation along `rays` (a `RayBundle`); `color` False: depths only (the
-        augmentations are evaluated at the main model's samples, which carry the flag)."""
+    def render(self, rays, randomized: bool, color: bool = True, skip: frozenset[str] = frozenset()) -> Renders:
+        """The main NeRF and every augmentation (but those named in `skip`) along `rays` (a `RayBundle`); `color`
+        False: depths only (the augmentations are evaluated at the main model's samples, which carry the flag)."""
         main = self.nerf(rays, randomized=randomized, color=color)
-        return Renders(main, {aug.name: aug.render(self.nerf, main, randomized) for aug in self.augmentations})
+        return Renders(main, {aug.name: aug.render(self.nerf, main, randomized) for aug in self.augmentations
+                              if aug.name not in skip})
+
+    def own_terms(self, augmentation: str) -> list[str]:
+        """The terms only an augmentation's render feeds: its masked depth term and its mass concentration (its
+        colour and sparse-depth losses are part of L_color and L_sd, which train only the augmentation itself)."""
+        return [name for name in (augmentation, f"{augmentation}_concentration") if name in self.terms]
 
     def training_step(self, batch: TrainingBatch, batch_idx: int) -> torch.Tensor:
         """One optimiser step of L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc (paper Sec. 4.4; `self.terms`):
@@ -198,11 +207,13 @@ class SimpleNeRF(L.LightningModule):
         """A part's random and / or sparse rays rendered (a whole batch in one pass, then split; sparse rays alone:
         depth only)."""
         if part.random is not None and part.sparse is not None:
-            both = self.render(part.random.rays.cat(part.sparse.rays), randomized=True)
+            both = self.render(part.random.rays.cat(part.sparse.rays), randomized=True, skip=self.retired)
             random, sparse = both.split(len(part.random))
         else:
-            random = self.render(part.random.rays, randomized=True) if part.random is not None else None
-            sparse = self.render(part.sparse.rays, randomized=True, color=False) if part.sparse is not None else None
+            random = (self.render(part.random.rays, randomized=True, skip=self.retired)
+                      if part.random is not None else None)
+            sparse = (self.render(part.sparse.rays, randomized=True, color=False, skip=self.retired)
+                      if part.sparse is not None else None)
         rendered = []
         if random is not None:
             errors = ReprojectionErrors(self.train_views, part.random) if self.train_views is not None else None

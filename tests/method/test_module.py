@@ -113,6 +113,13 @@ def test_coarse_fine_supervision_sets_the_direction_of_l_cfc_alone(batch, cfc_di
     assert g_coarse is None or not g_coarse.any()  # never toward the fine depth where it is the less reliable
 
 
+def deterministic(model: SimpleNeRF, monkeypatch) -> None:
+    """The model's training renders made deterministic (no jitter, no noise)."""
+    render = model.render
+    monkeypatch.setattr(model, "render", lambda rays, randomized, color=True, skip=frozenset(): render(
+        rays, False, color, skip))
+
+
 def run_step(model, dm, monkeypatch) -> tuple[torch.Tensor, dict]:
     model.set_train_views(dm.train_views)
     return step(model, next(iter(dm.train_dataloader())), monkeypatch)
@@ -171,6 +178,37 @@ def test_loss_weight_schedule_is_data():
         LossWeightSchedule({"cfc": [(10, 0.1), (0, 0.0)]})
 
 
+def test_an_augmentation_whose_own_terms_stay_off_is_retired_and_leaves_the_main_model_as_it_was(datamodule,
+                                                                                                  monkeypatch):
+    """From the step where an augmentation's masked depth term is 0 to the end of the schedule, training stops
+    rendering it: its field gets no gradient, and the main model's gradient is the same to the bit (nothing the
+    augmentation renders reaches the main model once its term is off)."""
+    from simplenerf.run.callbacks import LossWeightSchedule
+
+    schedule = LossWeightSchedule({"points": [(0, 0.1), (5, 0.0)]})
+    model = simplenerf_module()
+    for global_step, retired in ((4, set()), (5, {"points"}), (9, {"points"})):
+        schedule.on_train_batch_start(SimpleNamespace(global_step=global_step), model, None, 0)
+        assert model.retired == retired and model.terms["points"].weight == (0.0 if retired else 0.1)
+    back_on = LossWeightSchedule({"points": [(0, 0.1), (5, 0.0), (8, 0.1)]})  # off for a while, then on again
+    back_on.on_train_batch_start(SimpleNamespace(global_step=5), model, None, 0)
+    assert model.retired == frozenset() and model.terms["points"].weight == 0.0
+
+    grads = {}
+    for retired in (frozenset(), frozenset({"points"})):
+        model = simplenerf_module()
+        model.terms["points"].weight = 0.0
+        model.retired = retired
+        deterministic(model, monkeypatch)  # both steps see the same samples
+        _, logged = run_step(model, datamodule, monkeypatch)
+        grads[retired] = {name: p.grad for name, p in model.named_parameters()}
+    rendered, skipped = grads[frozenset()], grads[frozenset({"points"})]
+    assert all(skipped[name] is None for name in skipped if name.startswith("augmentations.0."))
+    assert all(rendered[name] is not None for name in rendered if name.startswith("augmentations.0."))
+    main = [name for name in rendered if not name.startswith("augmentations.0.")]
+    assert main and all(torch.equal(rendered[name], skipped[name]) for name in main)
+
+
 def test_a_schedule_naming_an_unknown_loss_is_one_clear_error():
     from simplenerf.errors import SimpleNeRFError
     from simplenerf.run.callbacks import LossWeightSchedule
@@ -204,8 +242,7 @@ def test_parts_give_the_one_part_loss_gradient_and_logs(datamodule, monkeypatch)
     results = []
     for rays_per_backward in (None, 10**6, 23):
         model = simplenerf_module(rays_per_backward=rays_per_backward)
-        render = model.render
-        monkeypatch.setattr(model, "render", lambda rays, randomized, color=True, f=render: f(rays, False, color))
+        deterministic(model, monkeypatch)
         loss, logged = run_step(model, datamodule, monkeypatch)
         grads = torch.cat([p.grad.flatten() for p in model.parameters() if p.grad is not None])
         results.append((loss, grads, {k: float(v) for k, v in logged.items()}))

@@ -247,6 +247,12 @@ class LossWeightSchedule(L.Callback):
     on, the term's weight is its value (before the first listed step the configured weight stays). The paper's warm-up
     is {points: [[0, 0.0], [10000, 0.1]], views: ..., cfc: ...}. The module logs every term's weight as
     train_params/<name>.
+
+    An augmentation whose own terms (`SimpleNeRF.own_terms`: its masked depth term and its mass concentration) are 0
+    from a step to the end of the run is retired there (`SimpleNeRF.retired`): training stops rendering it, since
+    nothing it renders reaches the main model again; e.g. `points: [[0, 0.0], [360, 0.1], [1600, 0.0]]` (with its
+    concentration also 0 from 1600) saves its evaluations for the rest of the run. Its weights stay as trained at
+    that step.
     """
 
     def __init__(self, schedules: dict[str, list[tuple[int, float]]]) -> None:
@@ -268,6 +274,10 @@ class LossWeightSchedule(L.Callback):
                 current = value
         return current
 
+    def zero_from(self, name: str, step: int, current: float) -> bool:
+        """Whether the term `name`, of weight `current` at `step`, stays 0 to the end of the run."""
+        return current == 0 and all(value == 0 for start, value in self.schedules.get(name, []) if start > step)
+
     def check_model(self, model: SimpleNeRF) -> None:
         """Every scheduled name must be one of the model's terms (`SimpleNeRF.terms`); the CLI calls this before any
         data is read, so a typo stops the run with one line instead of failing at the first batch."""
@@ -280,6 +290,11 @@ class LossWeightSchedule(L.Callback):
 
     def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
         self.check_model(pl_module)
+        step = trainer.global_step
         for name in self.schedules:
             term = pl_module.terms[name]
-            term.weight = self.value(name, trainer.global_step, term.weight)
+            term.weight = self.value(name, step, term.weight)
+        pl_module.retired = frozenset(
+            aug.name for aug in pl_module.augmentations
+            if all(self.zero_from(name, step, pl_module.terms[name].weight) for name in pl_module.own_terms(aug.name))
+        )

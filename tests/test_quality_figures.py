@@ -106,9 +106,9 @@ def test_demo_picture_lays_out_the_panels_with_or_without_exact_depth():
     rows, cols = np.mgrid[0:8, 0:12].astype(float)
     photo = np.repeat((20 * cols)[..., None], 3, axis=-1).astype(np.uint8)
     depth = 1.0 + rows + cols
-    with_exact = row(photo, photo, depth, None, depth, exact=depth, zoom=2)  # DS-NeRF's render unused
+    with_exact = row(photo, photo, depth, depth, exact=depth, zoom=2)  # DS-NeRF's depth
     assert with_exact.shape == (22 + 16, 5 * 24 + 4 * 4, 3)  # label bar + 2x panels, 4-px gaps
-    llff = row(photo, photo, depth, np.zeros_like(photo), None, zoom=1, shrink=2)  # its depth unused
+    llff = row(photo, photo, depth, np.zeros_like(photo), zoom=1, shrink=2)  # DS-NeRF's render
     assert llff.shape == (22 + 4, 4 * 6 + 3 * 4, 3)  # photo | SimpleNeRF | its depth | DS-NeRF, shrunk 2x
     ds_panel = llff[22:, 3 * (6 + 4):]
     assert (ds_panel == 0).all()  # the last panel is DS-NeRF's render, not a depth

@@ -44,20 +44,20 @@ def read_render(run_test: Path, frame: str) -> np.ndarray:
     return cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
 
 
-def row(photo: np.ndarray, simple_rgb: np.ndarray, simple_depth: np.ndarray, ds_rgb: np.ndarray | None,
-        ds_depth: np.ndarray | None, exact: np.ndarray | None = None, zoom: int = 2, shrink: int = 1) -> np.ndarray:
+def row(photo: np.ndarray, simple_rgb: np.ndarray, simple_depth: np.ndarray, ds: np.ndarray,
+        exact: np.ndarray | None = None, zoom: int = 2, shrink: int = 1) -> np.ndarray:
     """The picture [H', W', 3] uint8 from one frame's photo and renders [H, W, 3] uint8 and depths [H, W]: with the
-    exact depth, [photo | SimpleNeRF | SimpleNeRF depth | DS-NeRF depth | exact depth] in the exact depth's range
-    (`ds_rgb` unused); without, [photo | SimpleNeRF | SimpleNeRF depth | DS-NeRF] (the depth in its own range;
-    `ds_depth` unused); 4 white pixels between."""
+    exact depth, [photo | SimpleNeRF | SimpleNeRF depth | DS-NeRF depth | exact depth] in the exact depth's range,
+    `ds` DS-NeRF's depth; without, [photo | SimpleNeRF | SimpleNeRF depth | DS-NeRF] (the depth in its own range),
+    `ds` DS-NeRF's render; 4 white pixels between."""
     if exact is not None:
         lo, hi = inverse_depth_range(exact)
         items = [(photo, "photo (held out)"), (simple_rgb, "SimpleNeRF"),
                  (colorize_depth(simple_depth, lo, hi), "SimpleNeRF depth"),
-                 (colorize_depth(ds_depth, lo, hi), "DS-NeRF depth"), (colorize_depth(exact, lo, hi), "exact depth")]
+                 (colorize_depth(ds, lo, hi), "DS-NeRF depth"), (colorize_depth(exact, lo, hi), "exact depth")]
     else:
         items = [(photo, "photo (held out)"), (simple_rgb, "SimpleNeRF"),
-                 (colorize_depth(simple_depth), "SimpleNeRF depth"), (ds_rgb, "DS-NeRF")]
+                 (colorize_depth(simple_depth), "SimpleNeRF depth"), (ds, "DS-NeRF")]
     panels = [panel(picture, label, zoom, shrink) for picture, label in items]
     gap = np.full((panels[0].shape[0], 4, 3), 255, np.uint8)
     return np.concatenate([p for item in panels for p in (item, gap)][:-1], axis=1)
@@ -83,10 +83,9 @@ def main() -> None:
     index = names.index(args.frame)
     exact = None if scene.views.depths is None else scene.views.depths[index].numpy()
     frame = f"{args.frame}.npy"
-    ds_rgb = read_render(ds, args.frame) if exact is None else None  # the layout shows DS-NeRF's render or depth
-    ds_depth = np.load(ds / "depth" / frame) if exact is not None else None
+    ds_panel = read_render(ds, args.frame) if exact is None else np.load(ds / "depth" / frame)  # the layout's
     picture = row(to_uint8(scene.views.images[index].numpy()), read_render(simple, args.frame),
-                  np.load(simple / "depth" / frame), ds_rgb, ds_depth, exact, args.zoom, args.shrink)
+                  np.load(simple / "depth" / frame), ds_panel, exact, args.zoom, args.shrink)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_png(out, picture, jpeg_quality=85)

@@ -26,6 +26,7 @@ from simplenerf.method.augmentations import Augmentation
 from simplenerf.method.losses import psnr_of_mse
 from simplenerf.method.objective import (
     RESERVED_NAMES,
+    ConcentrationTerm,
     MaskedDepthTerm,
     Objective,
     RenderedRays,
@@ -166,7 +167,9 @@ class SimpleNeRF(L.LightningModule):
     def own_terms(self, augmentation: str) -> list[str]:
         """The terms only an augmentation's render feeds: its masked depth term and its mass concentration (its
         colour and sparse-depth losses are part of L_color and L_sd, which train only the augmentation itself)."""
-        return [name for name in (augmentation, f"{augmentation}_concentration") if name in self.terms]
+        return [name for name, term in self.terms.items()
+                if isinstance(term, MaskedDepthTerm) and term.other == augmentation
+                or isinstance(term, ConcentrationTerm) and term.augmentation == augmentation]
 
     def training_step(self, batch: TrainingBatch, batch_idx: int) -> torch.Tensor:
         """One optimiser step of L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc (paper Sec. 4.4; `self.terms`):

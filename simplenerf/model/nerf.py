@@ -169,17 +169,20 @@ class NeRF(nn.Module):
         Returns:
             rgb [R, 3], depth [R], accumulation [R] of the fine field, coarse_depth [R] and augmented_depth {name: [R]}.
         """
-        parts, augmented = [], {aug.name: [] for aug in augmentations}
+        # Only the per-ray results of a chunk are kept: its samples and weights ([chunk, S] each) are freed before
+        # the next chunk, so the peak does not grow with the number of rays times the samples per ray.
+        parts: list[FrameRender] = []
         for start in range(0, len(rays), chunk):
             if before_chunk is not None:
                 before_chunk()
             main = self(rays[start : start + chunk], randomized=False)
-            parts.append(main)
-            for aug in augmentations:
-                augmented[aug.name].append(aug.render(self, main, False).depth)
-        return FrameRender(torch.cat([p.fine.rgb for p in parts]), torch.cat([p.fine.depth for p in parts]),
-                           torch.cat([p.fine.accumulation for p in parts]), torch.cat([p.coarse.depth for p in parts]),
-                           {name: torch.cat(depths) for name, depths in augmented.items()})
+            augmented = {aug.name: aug.render(self, main, False).depth for aug in augmentations}
+            parts.append(FrameRender(main.fine.rgb, main.fine.depth, main.fine.accumulation, main.coarse.depth,
+                                     augmented))
+            del main
+        return FrameRender(*(torch.cat([getattr(p, k) for p in parts]) for k in ("rgb", "depth", "accumulation",
+                                                                                   "coarse_depth")),
+                           {aug.name: torch.cat([p.augmented_depth[aug.name] for p in parts]) for aug in augmentations})
 
 
 def mlp_nerf(num_coarse: int = 64, num_fine: int = 128, density_noise_std: float = 1.0, near: float = 1.0,

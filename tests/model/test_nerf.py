@@ -49,6 +49,26 @@ def test_chunked_rendering_equals_one_pass_and_is_deterministic():
     assert torch.equal(nerf.render_rays_chunked(r, chunk=64).rgb, nerf.render_rays_chunked(r, chunk=64).rgb)
 
 
+def test_chunked_rendering_frees_each_chunks_samples_before_the_next():
+    """Memory bounded at any resolution: when a chunk is rendered, the per-sample weights of the chunks before it are
+    gone (only their per-ray results are kept). Keeping them cost 18 GiB on a 1008x756 frame with 192 samples a ray."""
+    import weakref
+
+    nerf = small_nerf().eval()
+    forward, earlier, alive_at_each_chunk = nerf.forward, [], []
+
+    def recording_forward(*args, **kwargs):
+        alive_at_each_chunk.append(sum(ref() is not None for ref in earlier))
+        out = forward(*args, **kwargs)
+        earlier.extend(weakref.ref(t) for t in (out.coarse.weights, out.fine.weights, out.fine_samples.positions))
+        return out
+
+    nerf.forward = recording_forward
+    chunked = nerf.render_rays_chunked(rays(64), chunk=10)
+    assert alive_at_each_chunk == [0] * 7
+    assert chunked.rgb.shape == (64, 3) and chunked.depth.shape == (64,)
+
+
 def test_gradients_reach_both_fields():
     nerf = small_nerf()
     out = nerf(rays(), randomized=True)

@@ -85,19 +85,26 @@ def test_ray_spread_is_zero_for_a_surface_and_about_a_uniform_fogs_std():
     from benchmarks.quality.view_scores import ray_spread
 
     t = torch.linspace(0, 1, 101)[:-1].expand(4, 100)
+    # rays along NDC z at x = 0.2, except that they move 0.5 in x per unit of t (a camera moved sideways), y = -0.1
+    positions = torch.stack([0.2 + 0.5 * t, torch.full_like(t, -0.1), 2 * t - 1], dim=-1)
     surface = torch.zeros(4, 100)
     surface[:, 30] = 0.9  # accumulation 0.9: normalised away
     fog = torch.full((4, 100), 0.01)
 
     def model_with(weights):
-        outputs = SimpleNamespace(fine_samples=SimpleNamespace(t=t), fine=SimpleNamespace(weights=weights))
+        outputs = SimpleNamespace(fine_samples=SimpleNamespace(t=t, positions=positions),
+                                  fine=SimpleNamespace(weights=weights))
         return SimpleNamespace(nerf=lambda rays, randomized: outputs)
 
-    frame = SimpleNamespace(rays=torch.arange(4))
-    assert ray_spread(model_with(surface), frame, every=1) == {"spread_t": 0.0, "off_surface": 0.0}
+    frame = SimpleNamespace(rays=torch.arange(4), width=200, height=100)
+    assert ray_spread(model_with(surface), frame, every=1) == {"spread_t": 0.0, "off_surface": 0.0,
+                                                                "footprint_x_px": 0.0, "footprint_y_px": 0.0}
     spread = ray_spread(model_with(fog), frame, every=1)
-    assert spread["spread_t"] == pytest.approx((1 / 12 - 1 / 12 / 100**2) ** 0.5, rel=1e-4)  # discrete uniform
+    uniform_std = (1 / 12 - 1 / 12 / 100**2) ** 0.5  # of the discrete uniform t
+    assert spread["spread_t"] == pytest.approx(uniform_std, rel=1e-4)
     assert spread["off_surface"] == pytest.approx(0.89, abs=0.011)  # all but the 10 or 11 samples within 0.05
+    assert spread["footprint_x_px"] == pytest.approx(0.5 * uniform_std * 100, rel=1e-4)  # 0.5 x per t, 100 px per NDC x
+    assert spread["footprint_y_px"] == pytest.approx(0.0, abs=1e-5)
 
 
 def test_demo_picture_lays_out_the_panels_with_or_without_exact_depth():

@@ -1,9 +1,11 @@
 """A trained run's renders of its training views and of its test views, scored alike (docs/results.md "Where the
 blur and the streaks come from"): a render as blurred on the views it was trained on as on the held-out ones is an
-under-fit (budget, capacity); sharp on the training views and blurred on the others is geometry. With `--spread`,
-also how each view's rays spread their weight along the ray: the weighted standard deviation of the fine samples'
-NDC t (a uniform fog over [0, 1): 0.29; an opaque surface: about 0) and the share of the weight farther than 0.05 in
-NDC t from the ray's median.
+under-fit (budget, capacity); sharp on the training views and blurred on the others is geometry. Each view's streak
+index (`benchmarks.quality.streak_index`: the render's row / column roughness ratio over the photo's; 1: none) is
+given too, so that streaks can be judged on validation views. With `--spread`, also how each view's rays spread their
+weight along the ray: the weighted standard deviation of the fine samples' NDC t (a uniform fog over [0, 1): 0.29; an
+opaque surface: about 0), the share of the weight farther than 0.05 in NDC t from the ray's median, and the
+footprint in pixels across and down the image (`ray_spread`).
 
     python -m benchmarks.quality.view_scores runs/grid/fern_seed0_simplerf [--factor 4] [--frames 6,13,16] [--spread] \
         [--out DIR] [-- CLI overrides]
@@ -25,6 +27,7 @@ import cv2
 import numpy as np
 import torch
 
+from benchmarks.quality.streak_index import axis_ratio
 from simplenerf.commands import split_overrides
 from simplenerf.data.datasets import Frames
 from simplenerf.metrics.lpips import LPIPS
@@ -33,16 +36,27 @@ from simplenerf.run.cli import make_cli
 
 
 def ray_spread(model, frame, every: int = 37) -> dict[str, float]:
-    """Weight spread of every `every`-th ray of a frame: mean weighted std of NDC t and share of weight off-surface."""
+    """Weight spread of every `every`-th ray of a frame: mean weighted std of NDC t, share of weight off-surface, and
+    the footprint: the weighted std of the samples' NDC x and y in pixels of the frame's size (NDC x and y span
+    [-1, 1] across the reference camera's image). A training ray runs along NDC z, so its footprint is about 0 whatever
+    its spread; a ray of a camera moved sideways crosses x as it goes, and a render there is the scene blurred by its
+    footprint: the horizontal smear of fern's test frames 0 and 8 (docs/results.md "Where the blur and the streaks come
+    from", 13)."""
     with torch.no_grad():
         out = model.nerf(frame.rays[torch.arange(0, len(frame.rays), every)], randomized=False)
     t = out.fine_samples.t
     p = out.fine.weights / out.fine.weights.sum(-1, keepdim=True).clamp_min(1e-6)
-    mean = (p * t).sum(-1, keepdim=True)
-    std = (p * (t - mean) ** 2).sum(-1).sqrt()
+
+    def weighted_std(values: torch.Tensor) -> torch.Tensor:
+        mean = (p * values).sum(-1, keepdim=True)
+        return (p * (values - mean) ** 2).sum(-1).sqrt()
+
     median = torch.gather(t, 1, (p.cumsum(-1) < 0.5).sum(-1, keepdim=True).clamp(max=t.shape[1] - 1))
     off = (p * ((t - median).abs() > 0.05)).sum(-1)
-    return {"spread_t": float(std.mean()), "off_surface": float(off.mean())}
+    positions = out.fine_samples.positions
+    return {"spread_t": float(weighted_std(t).mean()), "off_surface": float(off.mean()),
+            "footprint_x_px": float(weighted_std(positions[..., 0]).mean()) * frame.width / 2,
+            "footprint_y_px": float(weighted_std(positions[..., 1]).mean()) * frame.height / 2}
 
 
 def main() -> None:
@@ -77,7 +91,8 @@ def main() -> None:
         rgb = render.rgb.clamp(0, 1)
         kind = "train" if frame.index in split.train else "test" if frame.index in split.test else "validation"
         scores = {"kind": kind, "psnr": psnr(rgb[None], photo[None]).item(),
-                  "lpips": lpips(rgb[None], photo[None], net).item()}
+                  "lpips": lpips(rgb[None], photo[None], net).item(),
+                  "streak": axis_ratio(to_uint8(rgb.numpy())) / axis_ratio(to_uint8(photo.numpy()))}
         if args.spread:
             scores |= ray_spread(model, frame)
         per_frame[frame.index] = scores

@@ -23,8 +23,10 @@ import json
 import os
 import shlex
 import sys
+import heapq
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor, wait
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -119,6 +121,35 @@ class GpuPool:
             self.cond.notify_all()
 
 
+class ReadySlots:
+    """`n` jobs at a time, the free slots handed out in the order the units became ready, ties in stage order (the
+    index in `todo`): the order of SLURM's queue. A `threading.Semaphore` lets a unit whose needs just finished take
+    the slot its need freed, ahead of units already waiting, and a waiting unit can lose its turn that way again and
+    again (a fit left waiting while every later scene's fits and tests ran)."""
+
+    def __init__(self, n: int) -> None:
+        self.free, self.finished = n, 0  # free slots; jobs finished so far (the clock of readiness)
+        self.waiting: list[tuple[int, int]] = []  # heap of (finished when it became ready, index)
+        self.changed = threading.Condition()
+
+    @contextmanager
+    def slot(self, index: int):
+        with self.changed:
+            key = (self.finished, index)
+            heapq.heappush(self.waiting, key)
+            self.changed.wait_for(lambda: self.free > 0 and self.waiting[0] == key)
+            heapq.heappop(self.waiting)
+            self.free -= 1
+            self.changed.notify_all()  # the next in line may find a slot free too
+        try:
+            yield
+        finally:
+            with self.changed:
+                self.free += 1
+                self.finished += 1
+                self.changed.notify_all()
+
+
 def run_here(plan: Plan, todo: list[Unit], executor: str, log=print, job_function=None) -> dict[str, str]:
     """The local and debug executors: the plan's graph as SLURM runs it, each job once the jobs it needs are done,
     `concurrent_jobs` at a time (debug: one); returns unit id -> done / failed / blocked. Locally, a job of a stage
@@ -147,7 +178,7 @@ def run_here(plan: Plan, todo: list[Unit], executor: str, log=print, job_functio
             log("no GPU on this machine: every job runs on the CPU")
     function = job_function or (_quiet_run if executor == "debug" else run_unit)
     lock = threading.Lock()
-    slots = threading.Semaphore(workers)  # jobs running at once
+    slots = ReadySlots(workers)  # jobs running at once, in the order they became ready
 
     def one(unit: Unit) -> str:
         wanted = resources.for_stage(unit.stage).gpus_per_job if gpus.all else 0
@@ -176,6 +207,7 @@ def run_here(plan: Plan, todo: list[Unit], executor: str, log=print, job_functio
         return result
 
     futures: dict[str, Future] = {}
+    order = {unit.id: i for i, unit in enumerate(todo)}
 
     def after_needs(unit: Unit) -> str:
         """As SLURM's afterok: the unit waits for the jobs it needs (the table: afterany), then for a free slot."""
@@ -185,7 +217,7 @@ def run_here(plan: Plan, todo: list[Unit], executor: str, log=print, job_functio
         if failed and unit.stage != "table":
             log(f"  {unit.stage} {unit.key}: blocked ({failed[0]} did not finish)")
             return "blocked"
-        with slots:
+        with slots.slot(order[unit.id]):
             return one(unit)
 
     log(f"{len(todo)} job(s), {workers} at a time, each once the jobs it needs are done")

@@ -600,3 +600,36 @@ def test_the_ablations_sweep_reuses_the_13_simplenerf_fits_of_table1(monkeypatch
     table1 = digests["llff_table1"].keys() | digests["realestate_table1"].keys()
     shared = sorted(key for digest, key in digests["ablations_table3"].items() if digest in table1)
     assert len(shared) == 13 and all(key.endswith("/2v/SimpleNeRF/seed0") for key in shared)
+
+
+def test_local_slots_go_to_units_in_the_order_they_became_ready():
+    """One slot: a unit that becomes ready when the running job ends (its test) does not take the freed slot ahead of
+    the unit already waiting for it (the next fit), as a semaphore lets it."""
+    import threading
+    import time
+
+    from simplenerf.experiments.executors import ReadySlots
+
+    slots, started = ReadySlots(1), []
+
+    def fit_then_its_test() -> None:
+        with slots.slot(0):
+            started.append("fit 0")
+            while not slots.waiting:  # fit 1 waits for the slot
+                time.sleep(0.001)
+        with slots.slot(2):  # ready now that fit 0 is done
+            started.append("test 0")
+
+    def next_fit() -> None:
+        while not started:
+            time.sleep(0.001)
+        with slots.slot(1):
+            started.append("fit 1")
+
+    threads = [threading.Thread(target=fit_then_its_test), threading.Thread(target=next_fit)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=10)
+    assert started == ["fit 0", "fit 1", "test 0"]
+    assert slots.free == 1 and slots.finished == 3 and not slots.waiting

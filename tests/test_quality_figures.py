@@ -107,6 +107,39 @@ def test_ray_spread_is_zero_for_a_surface_and_about_a_uniform_fogs_std():
     assert spread["footprint_y_px"] == pytest.approx(0.0, abs=1e-5)
 
 
+def test_surface_render_takes_the_colour_at_the_median_of_the_weights():
+    from types import SimpleNamespace
+
+    import torch
+
+    from benchmarks.quality.view_scores import surface_render
+
+    t = torch.linspace(0, 1, 11).expand(6, 11)  # 6 rays (a 2 x 3 frame), 11 samples from t 0 to 1
+    weights = torch.zeros(6, 11)
+    weights[:3, 3] = 1.0  # a surface at t 0.3
+    weights[3:] = 0.05  # a fog: the median of its weights at t 0.5
+    outputs = SimpleNamespace(fine_samples=SimpleNamespace(t=t),
+                              fine=SimpleNamespace(weights=weights, rgb=torch.full((6, 3), 0.7)))
+
+    class Nerf:  # the field's colour is t in every channel
+        fine = None
+
+        def __call__(self, rays, randomized):
+            return SimpleNamespace(fine_samples=SimpleNamespace(t=t[rays]),
+                                   fine=SimpleNamespace(weights=weights[rays], rgb=outputs.fine.rgb[rays]))
+
+        def make_samples(self, rays, t_points):
+            return t_points
+
+        def evaluate(self, field, samples):
+            return SimpleNamespace(rgb=samples[..., None].expand(*samples.shape, 3))
+
+    frame = SimpleNamespace(rays=torch.arange(6), height=2, width=3)
+    composite, surface = surface_render(SimpleNamespace(nerf=Nerf()), frame, chunk=4)  # chunks of 4 and 2 rays
+    assert composite.shape == surface.shape == (2, 3, 3) and bool((composite == 0.7).all())
+    assert torch.allclose(surface[0], torch.full((3, 3), 0.3)) and torch.allclose(surface[1], torch.full((3, 3), 0.5))
+
+
 def test_demo_picture_lays_out_the_panels_with_or_without_exact_depth():
     from benchmarks.quality.demo_picture import row
 

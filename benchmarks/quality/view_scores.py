@@ -5,10 +5,11 @@ index (`benchmarks.quality.streak_index`: the render's row / column roughness ra
 given too, so that streaks can be judged on validation views. With `--spread`, also how each view's rays spread their
 weight along the ray: the weighted standard deviation of the fine samples' NDC t (a uniform fog over [0, 1): 0.29; an
 opaque surface: about 0), the share of the weight farther than 0.05 in NDC t from the ray's median, and the
-footprint in pixels across and down the image (`ray_spread`).
+footprint in pixels across and down the image (`ray_spread`). With `--surface`, each view is also scored rendered
+with the colour at the median of each ray's weights (`surface_render`): what the picture would be without that blur.
 
     python -m benchmarks.quality.view_scores runs/grid/fern_seed0_simplerf [--factor 4] [--frames 6,13,16] [--spread] \
-        [--out DIR] [-- CLI overrides]
+        [--surface] [--out DIR] [-- CLI overrides]
 
 The run's config.yaml and checkpoints/last.ckpt (or `--ckpt_path`, e.g. an earlier step's checkpoint) are read;
 `--factor` renders at another image size of the same scene. A frame in neither the train nor the test split is a
@@ -59,6 +60,25 @@ def ray_spread(model, frame, every: int = 37) -> dict[str, float]:
             "footprint_y_px": float(weighted_std(positions[..., 1]).mean()) * frame.height / 2}
 
 
+def surface_render(model, frame, chunk: int = 2048) -> tuple[torch.Tensor, torch.Tensor]:
+    """The frame rendered as trained ([H, W, 3]), and with each ray's colour taken at one point: the fine field's
+    colour at the median of the ray's fine weights ([H, W, 3]). The two differ by what the weight spread along the
+    rays does to the picture (from a camera moved sideways, a horizontal blur the width of the rays' footprint); where
+    the median is on the surface, the second is that surface's colour without the blur."""
+    composite, surface, nerf = [], [], model.nerf
+    with torch.no_grad():
+        for start in range(0, len(frame.rays), chunk):
+            rays = frame.rays[start : start + chunk]
+            out = nerf(rays, randomized=False)
+            t, w = out.fine_samples.t, out.fine.weights
+            cdf = (w / w.sum(-1, keepdim=True).clamp_min(1e-6)).cumsum(-1)
+            median = torch.gather(t, 1, (cdf < 0.5).sum(-1, keepdim=True).clamp(max=t.shape[1] - 1))
+            composite.append(out.fine.rgb)
+            surface.append(nerf.evaluate(nerf.fine, nerf.make_samples(rays, median)).rgb[:, 0])
+    shape = (frame.height, frame.width, 3)
+    return torch.cat(composite).reshape(shape), torch.cat(surface).reshape(shape)
+
+
 def main() -> None:
     own, overrides = split_overrides(sys.argv[1:])
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -67,6 +87,8 @@ def main() -> None:
     parser.add_argument("--frames", help="comma-separated frame indices (default: train then test)")
     parser.add_argument("--ckpt_path", type=Path, help="the checkpoint to load (default: RUN/checkpoints/last.ckpt)")
     parser.add_argument("--spread", action="store_true", help="also the weight spread along the rays")
+    parser.add_argument("--surface", action="store_true",
+                        help="also score each view rendered with the colour at the median of each ray's weights")
     parser.add_argument("--out", type=Path, help="write photo | render PNGs here")
     args = parser.parse_args(own)
     cli_args = ["--config", str(args.run / "config.yaml"), "--trainer.logger", "false"]
@@ -85,20 +107,26 @@ def main() -> None:
         args.out.mkdir(parents=True, exist_ok=True)
     per_frame = {}
     for frame in Frames(data.scene.views, data.near, frames):
-        with torch.no_grad():
-            render = model.render_frame(frame)
+        if args.surface:
+            rgb, surface = (x.clamp(0, 1) for x in surface_render(model, frame, model.hparams.chunk))
+        else:
+            with torch.no_grad():
+                rgb = model.render_frame(frame).rgb.clamp(0, 1)
         photo = frame.rgb.reshape(frame.height, frame.width, 3)
-        rgb = render.rgb.clamp(0, 1)
         kind = "train" if frame.index in split.train else "test" if frame.index in split.test else "validation"
         scores = {"kind": kind, "psnr": psnr(rgb[None], photo[None]).item(),
                   "lpips": lpips(rgb[None], photo[None], net).item(),
                   "streak": axis_ratio(to_uint8(rgb.numpy())) / axis_ratio(to_uint8(photo.numpy()))}
+        if args.surface:
+            scores |= {"surface_psnr": psnr(surface[None], photo[None]).item(),
+                       "surface_lpips": lpips(surface[None], photo[None], net).item(),
+                       "surface_streak": axis_ratio(to_uint8(surface.numpy())) / axis_ratio(to_uint8(photo.numpy()))}
         if args.spread:
             scores |= ray_spread(model, frame)
         per_frame[frame.index] = scores
         print(frame.index, scores, flush=True, file=sys.stderr)
         if args.out:
-            picture = to_uint8(torch.cat([photo, rgb], dim=1).numpy())
+            picture = to_uint8(torch.cat([photo, rgb] + ([surface] if args.surface else []), dim=1).numpy())
             cv2.imwrite(str(args.out / f"{kind}_{frame.index:03d}.png"), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR))
     means = {}
     for kind in ("train", "validation", "test"):

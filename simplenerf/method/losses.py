@@ -72,6 +72,19 @@ def mass_concentration_loss(weights: torch.Tensor, num_bins: int = 5, eps: float
     return torch.special.entr(binned + eps).sum(-1).mean()
 
 
+def color_spread_loss(weights: torch.Tensor, sample_rgb: torch.Tensor, rgb: torch.Tensor) -> torch.Tensor:
+    """The weighted variance of the samples' colours about the ray's rendered colour, sum_i w_i |c_i - C|^2 with
+    C = sum_i w_i c_i, mean over rays: 0 when every sample that carries weight has the pixel's colour, as on an
+    opaque surface. Not in the paper. A render whose colour is a blend of different colours along the ray matches
+    its training view and no other: from a camera moved sideways the blend falls apart into a smear
+    (docs/results.md "Where the blur and the streaks come from", 13).
+
+    Args:
+        weights: [R, S]. sample_rgb: [R, S, 3]. rgb: [R, 3] the composite.
+    """
+    return (weights * (sample_rgb - rgb[:, None, :]).pow(2).sum(-1)).sum(-1).mean()
+
+
 def distortion_loss(weights: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     """Mip-NeRF 360's distortion loss (Barron et al., CVPR 2022, eq. 15), on sorted samples: low when each ray's
     weight sits in one short interval (a surface), high when it is spread along the ray (a fog, whose mean depth

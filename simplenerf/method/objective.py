@@ -27,6 +27,7 @@ from simplenerf.data.batches import RayBatch, SparseDepthBatch
 from simplenerf.method.losses import (
     coarse_fine_sparse_loss,
     color_loss,
+    color_spread_loss,
     distortion_loss,
     mass_concentration_loss,
     sparse_depth_loss,
@@ -78,6 +79,11 @@ class Objective:
             on its own); 0 (the paper): off. Not in the paper; K-Planes and Mip-NeRF 360 use it against the fog
             that every depth loss of the paper allows, since they compare the mean depth only (docs/results.md
             "Where the blur and the streaks come from").
+        color_spread_weight: weight of the spread of the samples' colours about each ray's rendered colour
+            (`losses.color_spread_loss`) on the main coarse and fine renders (the terms "coarse_color_spread" and
+            "fine_color_spread", each scheduled on its own); 0: off. Not in the paper; against renders whose colour is a
+            blend along the ray, which smear from other views (docs/results.md "Where the blur and the streaks come
+            from", 13).
         terms: further terms (`Term` subclasses by `class_path`, e.g. a user's own), summed after the built-in ones;
             each is logged and scheduled by its `name` like them.
     """
@@ -93,6 +99,7 @@ class Objective:
     fine_concentration_weight: float = 0.0
     concentration_bins: int = 5
     distortion_weight: float = 0.0
+    color_spread_weight: float = 0.0
     terms: list[Term] = field(default_factory=list)
 
 
@@ -232,6 +239,19 @@ class DistortionTerm(Term):
         return TermValue(distortion_loss(rendered.renders[self.stage].weights, samples.t))
 
 
+class ColorSpreadTerm(Term):
+    """The spread of a main render's sample colours about its rendered colour (`losses.color_spread_loss`), on the
+    random rays."""
+
+    def __init__(self, stage: Literal["coarse", "fine"], weight: float) -> None:
+        super().__init__(f"{stage}_color_spread", weight, ("random",))
+        self.stage = stage
+
+    def value(self, rendered: RenderedRays) -> TermValue:
+        render = rendered.renders[self.stage]
+        return TermValue(color_spread_loss(render.weights, render.sample_rgb, render.rgb))
+
+
 class RegularizerTerm(Term):
     """A field's own regulariser (`Field.regularizers`, e.g. a grid's total variation), once per step."""
 
@@ -246,7 +266,8 @@ class RegularizerTerm(Term):
 def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[str, Field]) -> dict[str, Term]:
     """The terms by name, in the order they are summed: colour, sparse depth, one masked depth term per augmentation
     (named after it), Simple-RF's mass concentration of those that have one ("<name>_concentration"), the distortion
-    of the main renders ("coarse_distortion", "fine_distortion"), L_cfc ("cfc"), then each field's regularisers
+    of the main renders ("coarse_distortion", "fine_distortion"), the spread of their colours ("coarse_color_spread",
+    "fine_color_spread"), L_cfc ("cfc"), then each field's regularisers
     ("<regulariser>_<field>", e.g. "tv_fine"), then `objective.terms`.
 
     Args:
@@ -261,6 +282,7 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
               if aug.concentration_weight is not None]
     terms.append(ConcentrationTerm("fine", objective.fine_concentration_weight, objective.concentration_bins))
     terms += [DistortionTerm(stage, objective.distortion_weight) for stage in ("coarse", "fine")]
+    terms += [ColorSpreadTerm(stage, objective.color_spread_weight) for stage in ("coarse", "fine")]
     if objective.coarse_fine_mask is not None:
         cfc_depth = depth | {"supervision": objective.coarse_fine_supervision or objective.supervision}
         terms.append(MaskedDepthTerm("cfc", objective.coarse_fine_weight, objective.coarse_fine_mask, "coarse", "fine",

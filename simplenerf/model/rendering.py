@@ -20,11 +20,13 @@ class RenderOutputs:
     depth: torch.Tensor  # [R] metric depth, normalised by accumulation
     accumulation: torch.Tensor  # [R] sum of weights
     weights: torch.Tensor  # [R, S]
+    sample_rgb: torch.Tensor | None = None  # [R, S, 3] the samples' colours that `rgb` composites (None: no colour)
 
     def __getitem__(self, index: slice) -> RenderOutputs:
         """The outputs of a subset of the rays."""
         rgb = None if self.rgb is None else self.rgb[index]
-        return RenderOutputs(rgb, self.depth[index], self.accumulation[index], self.weights[index])
+        sample_rgb = None if self.sample_rgb is None else self.sample_rgb[index]
+        return RenderOutputs(rgb, self.depth[index], self.accumulation[index], self.weights[index], sample_rgb)
 
 
 def deltas(t: torch.Tensor, ndc_directions: torch.Tensor) -> torch.Tensor:
@@ -96,4 +98,5 @@ def composite(w: torch.Tensor, rgb: torch.Tensor | None, t_metric: torch.Tensor)
         depth=(w * t_metric).sum(-1) / (acc + 1e-6),
         accumulation=acc,
         weights=w,
+        sample_rgb=rgb,
     )

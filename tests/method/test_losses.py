@@ -9,7 +9,7 @@ import torch
 from simplenerf.data.batches import RayBatch
 from simplenerf.geometry.rays import make_rays
 from simplenerf.method.augmentations import Augmentation
-from simplenerf.method.losses import bin_sizes, distortion_loss, mass_concentration_loss
+from simplenerf.method.losses import bin_sizes, color_spread_loss, distortion_loss, mass_concentration_loss
 from simplenerf.method.module import SimpleNeRF
 from simplenerf.method.objective import Objective, RenderedRays, part_loss
 from simplenerf.method.reliability import PatchReprojectionMask
@@ -155,3 +155,33 @@ def test_the_objective_puts_the_distortion_on_both_main_renders():
                                distortion_loss(main.coarse.weights, main.coarse_samples.t))
     torch.testing.assert_close(part.loss, part.values["color"] + 0.03 * (part.values["coarse_distortion"]
                                                                          + part.values["fine_distortion"]))
+
+
+def test_color_spread_is_zero_for_one_colour_along_the_ray_and_the_variance_of_a_blend():
+    w = torch.tensor([[0.0, 0.5, 0.5, 0.0], [0.0, 1.0, 0.0, 0.0]])
+    c = torch.zeros(2, 4, 3)
+    c[0, 1], c[0, 2] = 1.0, 0.0  # ray 0: half white, half black -> grey, each sample 0.5 off in every channel
+    c[1] = 0.3  # ray 1: one colour
+    rgb = (w[..., None] * c).sum(-2)
+    assert color_spread_loss(w[1:], c[1:], rgb[1:]).item() == 0.0
+    assert color_spread_loss(w[:1], c[:1], rgb[:1]).item() == pytest.approx(3 * 0.25)  # 0.5 * 3 * 0.25 * 2
+    assert color_spread_loss(w, c, rgb).item() == pytest.approx(3 * 0.25 / 2)  # mean over rays
+
+
+def test_the_objective_puts_the_color_spread_on_both_main_renders():
+    torch.manual_seed(0)
+    nerf = NeRF(small_grid(), small_grid(), num_coarse=10, num_fine=6, density_noise_std=0.0)
+    model = SimpleNeRF(nerf, objective=Objective(color_spread_weight=0.1))
+    for term in model.terms.values():
+        if term.name.startswith("tv_"):
+            term.weight = 0.0
+    batch = ray_batch()
+    renders = model.render(batch.rays, randomized=False)
+    part = part_loss(model.terms, [RenderedRays("random", batch, renders, share=1.0)], regularize=False)
+    assert set(part.values) == {"color", "coarse_color_spread", "fine_color_spread"}
+    fine = renders.main.fine
+    assert fine.sample_rgb.shape == (*fine.weights.shape, 3)
+    torch.testing.assert_close(fine.rgb, (fine.weights[..., None] * fine.sample_rgb).sum(-2))
+    torch.testing.assert_close(part.values["fine_color_spread"], color_spread_loss(fine.weights, fine.sample_rgb, fine.rgb))
+    torch.testing.assert_close(part.loss, part.values["color"] + 0.1 * (part.values["coarse_color_spread"]
+                                                                        + part.values["fine_color_spread"]))

@@ -23,16 +23,15 @@ import json
 import os
 import shlex
 import sys
-import heapq
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor, wait
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from simplenerf.experiments.jobs import run_unit
 from simplenerf.experiments.plan import Plan, Unit
 from simplenerf.experiments.spec import STAGES, Resources, SweepError
+from simplenerf.experiments.slots import ReadySlots
 from simplenerf.experiments.state import read_state, read_status
 
 MANIFEST = "sweep.json"
@@ -119,35 +118,6 @@ class GpuPool:
         with self.cond:
             self.free += gpus
             self.cond.notify_all()
-
-
-class ReadySlots:
-    """`n` jobs at a time, the free slots handed out in the order the units became ready, ties in stage order (the
-    index in `todo`): the order of SLURM's queue. A `threading.Semaphore` lets a unit whose needs just finished take
-    the slot its need freed, ahead of units already waiting, and a waiting unit can lose its turn that way again and
-    again (a fit left waiting while every later scene's fits and tests ran)."""
-
-    def __init__(self, n: int) -> None:
-        self.free, self.finished = n, 0  # free slots; jobs finished so far (the clock of readiness)
-        self.waiting: list[tuple[int, int]] = []  # heap of (finished when it became ready, index)
-        self.changed = threading.Condition()
-
-    @contextmanager
-    def slot(self, index: int):
-        with self.changed:
-            key = (self.finished, index)
-            heapq.heappush(self.waiting, key)
-            self.changed.wait_for(lambda: self.free > 0 and self.waiting[0] == key)
-            heapq.heappop(self.waiting)
-            self.free -= 1
-            self.changed.notify_all()  # the next in line may find a slot free too
-        try:
-            yield
-        finally:
-            with self.changed:
-                self.free += 1
-                self.finished += 1
-                self.changed.notify_all()
 
 
 def run_here(plan: Plan, todo: list[Unit], executor: str, log=print, job_function=None) -> dict[str, str]:

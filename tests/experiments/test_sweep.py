@@ -608,7 +608,7 @@ def test_local_slots_go_to_units_in_the_order_they_became_ready():
     import threading
     import time
 
-    from simplenerf.experiments.executors import ReadySlots
+    from simplenerf.experiments.slots import ReadySlots
 
     slots, started = ReadySlots(1), []
 

@@ -36,6 +36,11 @@ from simplenerf.metrics.scores import lpips, psnr, to_uint8
 from simplenerf.run.cli import make_cli
 
 
+def weight_median(t: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+    """[R, 1] the t of each ray's sample where its normalised weights p [R, S] reach half their sum."""
+    return torch.gather(t, 1, (p.cumsum(-1) < 0.5).sum(-1, keepdim=True).clamp(max=t.shape[1] - 1))
+
+
 def ray_spread(model, frame, every: int = 37) -> dict[str, float]:
     """Weight spread of every `every`-th ray of a frame: mean weighted std of NDC t, share of weight off-surface, and
     the footprint: the weighted std of the samples' NDC x and y in pixels of the frame's size (NDC x and y span
@@ -52,8 +57,7 @@ def ray_spread(model, frame, every: int = 37) -> dict[str, float]:
         mean = (p * values).sum(-1, keepdim=True)
         return (p * (values - mean) ** 2).sum(-1).sqrt()
 
-    median = torch.gather(t, 1, (p.cumsum(-1) < 0.5).sum(-1, keepdim=True).clamp(max=t.shape[1] - 1))
-    off = (p * ((t - median).abs() > 0.05)).sum(-1)
+    off = (p * ((t - weight_median(t, p)).abs() > 0.05)).sum(-1)
     positions = out.fine_samples.positions
     return {"spread_t": float(weighted_std(t).mean()), "off_surface": float(off.mean()),
             "footprint_x_px": float(weighted_std(positions[..., 0]).mean()) * frame.width / 2,
@@ -71,8 +75,7 @@ def surface_render(model, frame, chunk: int = 2048) -> tuple[torch.Tensor, torch
             rays = frame.rays[start : start + chunk]
             out = nerf(rays, randomized=False)
             t, w = out.fine_samples.t, out.fine.weights
-            cdf = (w / w.sum(-1, keepdim=True).clamp_min(1e-6)).cumsum(-1)
-            median = torch.gather(t, 1, (cdf < 0.5).sum(-1, keepdim=True).clamp(max=t.shape[1] - 1))
+            median = weight_median(t, w / w.sum(-1, keepdim=True).clamp_min(1e-6))
             composite.append(out.fine.rgb)
             surface.append(nerf.evaluate(nerf.fine, nerf.make_samples(rays, median)).rgb[:, 0])
     shape = (frame.height, frame.width, 3)
@@ -113,14 +116,15 @@ def main() -> None:
             with torch.no_grad():
                 rgb = model.render_frame(frame).rgb.clamp(0, 1)
         photo = frame.rgb.reshape(frame.height, frame.width, 3)
+        photo_ratio = axis_ratio(to_uint8(photo.numpy()))  # the streak index's reference
         kind = "train" if frame.index in split.train else "test" if frame.index in split.test else "validation"
         scores = {"kind": kind, "psnr": psnr(rgb[None], photo[None]).item(),
                   "lpips": lpips(rgb[None], photo[None], net).item(),
-                  "streak": axis_ratio(to_uint8(rgb.numpy())) / axis_ratio(to_uint8(photo.numpy()))}
+                  "streak": axis_ratio(to_uint8(rgb.numpy())) / photo_ratio}
         if args.surface:
             scores |= {"surface_psnr": psnr(surface[None], photo[None]).item(),
                        "surface_lpips": lpips(surface[None], photo[None], net).item(),
-                       "surface_streak": axis_ratio(to_uint8(surface.numpy())) / axis_ratio(to_uint8(photo.numpy()))}
+                       "surface_streak": axis_ratio(to_uint8(surface.numpy())) / photo_ratio}
         if args.spread:
             scores |= ray_spread(model, frame)
         per_frame[frame.index] = scores

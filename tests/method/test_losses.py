@@ -137,17 +137,24 @@ def test_distortion_matches_the_double_sum_on_uneven_samples():
     torch.testing.assert_close(distortion_loss(w, t), brute)
 
 
-def test_the_objective_puts_the_distortion_on_both_main_renders():
+def main_render_terms(objective: Objective):
+    """A small grid SimpleNeRF with `objective` (its planes' TV off), its deterministic renders of `ray_batch()` and
+    the objective on them as random rays: (model, renders, part loss)."""
     torch.manual_seed(0)
     nerf = NeRF(small_grid(), small_grid(), num_coarse=10, num_fine=6, density_noise_std=0.0)
-    model = SimpleNeRF(nerf, objective=Objective(distortion_weight=0.03))
-    assert model.terms["coarse_distortion"].weight == model.terms["fine_distortion"].weight == 0.03
+    model = SimpleNeRF(nerf, objective=objective)
     for term in model.terms.values():
         if term.name.startswith("tv_"):
             term.weight = 0.0
     batch = ray_batch()
     renders = model.render(batch.rays, randomized=False)
     part = part_loss(model.terms, [RenderedRays("random", batch, renders, share=1.0)], regularize=False)
+    return model, renders, part
+
+
+def test_the_objective_puts_the_distortion_on_both_main_renders():
+    model, renders, part = main_render_terms(Objective(distortion_weight=0.03))
+    assert model.terms["coarse_distortion"].weight == model.terms["fine_distortion"].weight == 0.03
     assert set(part.values) == {"color", "coarse_distortion", "fine_distortion"}
     main = renders.main
     torch.testing.assert_close(part.values["fine_distortion"], distortion_loss(main.fine.weights, main.fine_samples.t))
@@ -169,15 +176,7 @@ def test_color_spread_is_zero_for_one_colour_along_the_ray_and_the_variance_of_a
 
 
 def test_the_objective_puts_the_color_spread_on_both_main_renders():
-    torch.manual_seed(0)
-    nerf = NeRF(small_grid(), small_grid(), num_coarse=10, num_fine=6, density_noise_std=0.0)
-    model = SimpleNeRF(nerf, objective=Objective(color_spread_weight=0.1))
-    for term in model.terms.values():
-        if term.name.startswith("tv_"):
-            term.weight = 0.0
-    batch = ray_batch()
-    renders = model.render(batch.rays, randomized=False)
-    part = part_loss(model.terms, [RenderedRays("random", batch, renders, share=1.0)], regularize=False)
+    _, renders, part = main_render_terms(Objective(color_spread_weight=0.1))
     assert set(part.values) == {"color", "coarse_color_spread", "fine_color_spread"}
     fine = renders.main.fine
     assert fine.sample_rgb.shape == (*fine.weights.shape, 3)

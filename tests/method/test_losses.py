@@ -181,6 +181,7 @@ def test_the_objective_puts_the_color_spread_on_both_main_renders():
     fine = renders.main.fine
     assert fine.sample_rgb.shape == (*fine.weights.shape, 3)
     torch.testing.assert_close(fine.rgb, (fine.weights[..., None] * fine.sample_rgb).sum(-2))
-    torch.testing.assert_close(part.values["fine_color_spread"], color_spread_loss(fine.weights, fine.sample_rgb, fine.rgb))
+    torch.testing.assert_close(part.values["fine_color_spread"],
+                               color_spread_loss(fine.weights, fine.sample_rgb, fine.rgb))
     torch.testing.assert_close(part.loss, part.values["color"] + 0.1 * (part.values["coarse_color_spread"]
                                                                         + part.values["fine_color_spread"]))

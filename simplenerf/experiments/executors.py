@@ -30,8 +30,8 @@ from pathlib import Path
 
 from simplenerf.experiments.jobs import run_unit
 from simplenerf.experiments.plan import Plan, Unit
-from simplenerf.experiments.spec import STAGES, Resources, SweepError
 from simplenerf.experiments.slots import ReadySlots
+from simplenerf.experiments.spec import STAGES, Resources, SweepError
 from simplenerf.experiments.state import read_state, read_status
 
 MANIFEST = "sweep.json"

@@ -67,6 +67,10 @@ class Objective:
         depth_loss_space: what L_ap, L_av and L_cfc compare: `metric` depth (the paper and the release) or `inverse`
             depth 1 / z, bounded by 1 / near. Metric depth grows without bound towards the NDC far plane, where a few
             rays can dominate these squared losses (docs/results.md "Grid backbone"). The masks compare metric depth.
+        depth_error_limit: null (the paper): L_ap, L_av and L_cfc square each ray's depth difference; a depth
+            difference (in `depth_loss_space` units): past it they grow linearly (`reliability.limited_square`, a
+            Huber loss), so that a few rays whose depth runs to the far plane cannot swamp a step and Adam's moment
+            estimates with it. The sparse-ray part of L_cfc stays squared.
         coarse_fine_supervision: the direction of L_cfc alone; null: `supervision`. `one_way` with a `bidirectional`
             `supervision` trains the coarse depth toward the fine one but never the fine toward the coarse, while
             L_ap and L_av stay bidirectional (docs/results.md "Simple-RF's augmentation on the grid").
@@ -101,6 +105,7 @@ class Objective:
     coarse_fine_on_sparse_rays: bool = True
     supervision: Direction = "one_way"
     depth_loss_space: Literal["metric", "inverse"] = "metric"
+    depth_error_limit: float | None = None
     coarse_fine_supervision: Direction | None = None
     fine_concentration_weight: float = 0.0
     concentration_bins: int = 5
@@ -202,10 +207,12 @@ class MaskedDepthTerm(Term):
     for L_cfc, optionally the release's unmasked (z_coarse - sg(z_fine))^2 on the sparse-depth rays as well."""
 
     def __init__(self, name: str, weight: float, mask: ReliabilityMask, main: str, other: str,
-                 supervision: Direction, depth_loss_space: str, on_sparse_rays: bool = False) -> None:
+                 supervision: Direction, depth_loss_space: str, on_sparse_rays: bool = False,
+                 depth_error_limit: float | None = None) -> None:
         super().__init__(name, weight, ("random", "sparse") if on_sparse_rays else ("random",))
         self.mask, self.main, self.other = mask, main, other
         self.supervision, self.depth_loss_space = supervision, depth_loss_space
+        self.depth_error_limit = depth_error_limit
 
     def value(self, rendered: RenderedRays) -> TermValue:
         main, other = rendered.renders[self.main], rendered.renders[self.other]
@@ -217,7 +224,7 @@ class MaskedDepthTerm(Term):
         if self.depth_loss_space == "inverse":
             z_main, z_other = 1.0 / z_main.clamp_min(1e-6), 1.0 / z_other.clamp_min(1e-6)
         fractions = {} if mask is None else mask_fractions(mask)
-        return TermValue(masked_depth_loss(z_main, z_other, mask, self.supervision), fractions)
+        return TermValue(masked_depth_loss(z_main, z_other, mask, self.supervision, self.depth_error_limit), fractions)
 
 
 class ConcentrationTerm(Term):
@@ -285,7 +292,8 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
             augmentations' names).
     """
     terms: list[Term] = [ColorTerm(objective.color_weight), SparseDepthTerm(objective.sparse_depth_weight)]
-    depth = {"supervision": objective.supervision, "depth_loss_space": objective.depth_loss_space}
+    depth = {"supervision": objective.supervision, "depth_loss_space": objective.depth_loss_space,
+             "depth_error_limit": objective.depth_error_limit}
     for aug in augmentations:
         terms.append(MaskedDepthTerm(aug.name, aug.depth_weight, aug.mask, aug.stage, aug.name, **depth))
     terms += [ConcentrationTerm(aug.name, aug.concentration_weight, aug.concentration_bins) for aug in augmentations

@@ -163,8 +163,20 @@ def mask_fractions(mask: torch.Tensor) -> dict[str, torch.Tensor]:
     }
 
 
+def limited_square(error: torch.Tensor, limit: float | None) -> torch.Tensor:
+    """error^2, or with a `limit` the Huber form that equals it up to |error| = limit and grows linearly past it,
+    limit (2 |error| - limit): the gradient of one ray is bounded by 2 limit. Not in the paper: a metric depth near
+    the NDC far plane grows without bound, and one such ray can make a masked depth loss 1000 times its usual value
+    for a step (docs/results.md, "Where the blur and the streaks come from", 14)."""
+    if limit is None:
+        return error.square()
+    magnitude = error.abs()
+    return torch.where(magnitude <= limit, error.square(), limit * (2.0 * magnitude - limit))
+
+
 def masked_depth_loss(
-    z_main: torch.Tensor, z_other: torch.Tensor, mask: torch.Tensor | None, direction: Direction
+    z_main: torch.Tensor, z_other: torch.Tensor, mask: torch.Tensor | None, direction: Direction,
+    limit: float | None = None,
 ) -> torch.Tensor:
     """The depth consistency losses L_ap, L_av and L_cfc (paper eqs. 3, 4, 7).
 
@@ -179,6 +191,7 @@ def masked_depth_loss(
             "one_way" (what the release effectively trains: compute_depth_mse of src/loss_functions/
             PointsAugmentationDepthLoss02.py and its siblings zeroes its inputs in place, so the m = -1 term is always
             0): only the m = +1 term.
+        limit: None (the paper): squared errors; a depth difference: `limited_square`'s Huber form past it.
 
     Returns:
         [] scalar loss.
@@ -186,12 +199,12 @@ def masked_depth_loss(
     if direction not in ("bidirectional", "one_way"):
         raise ValueError(f"direction must be 'bidirectional' or 'one_way', got {direction!r}")
     if mask is None:
-        return (z_main - z_other).square().mean()
+        return limited_square(z_main - z_other, limit).mean()
     zero = torch.zeros_like(z_main)
     # torch.where rather than a product, so that a non-finite depth of a masked-out ray cannot turn the loss into NaN.
-    loss = torch.where(mask == 1, (z_main - z_other.detach()).square(), zero)
+    loss = torch.where(mask == 1, limited_square(z_main - z_other.detach(), limit), zero)
     if direction == "bidirectional":
-        loss = loss + torch.where(mask == -1, (z_main.detach() - z_other).square(), zero)
+        loss = loss + torch.where(mask == -1, limited_square(z_main.detach() - z_other, limit), zero)
     return loss.mean()
 
 

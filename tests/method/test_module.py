@@ -289,9 +289,10 @@ def test_ray_slices_cover_the_rays_in_parts_of_at_most_size():
     assert ray_slices(4, None) == [slice(0, 4)] and ray_slices(4, 8) == [slice(0, 4)]
 
 
-@pytest.mark.parametrize("space", ["metric", "inverse"])
-def test_masked_depth_losses_compare_metric_or_inverse_depth(space):
-    """`depth_loss_space`: the masked losses compare z or 1 / z; the mask itself always sees metric depth."""
+@pytest.mark.parametrize("space,limit", [("metric", None), ("inverse", None), ("metric", 1.0)])
+def test_masked_depth_losses_compare_metric_or_inverse_depth(space, limit):
+    """`depth_loss_space`: the masked losses compare z or 1 / z; the mask itself always sees metric depth.
+    `depth_error_limit`: past it a ray's error counts linearly."""
     from types import SimpleNamespace
 
     from simplenerf.method.objective import MaskedDepthTerm, RenderedRays
@@ -310,13 +311,28 @@ def test_masked_depth_losses_compare_metric_or_inverse_depth(space):
 
     outputs = {"coarse": render([2.0, 4.0, 8.0, 1.0]), "points": render([4.0, 2.0, 100.0, 1.0])}
     renders = type("R", (), {"__getitem__": lambda self, name: outputs[name]})()
-    term = MaskedDepthTerm("points", 0.1, Stub(), "coarse", "points", "bidirectional", space)
+    term = MaskedDepthTerm("points", 0.1, Stub(), "coarse", "points", "bidirectional", space, depth_error_limit=limit)
     result = term.value(RenderedRays("random", None, renders, 1.0, SimpleNamespace(views=None, rays=None)))
     assert {k: v.item() for k, v in result.masks.items()} == {"plus": 0.5, "minus": 0.25, "zero": 0.25}
     assert seen["z"][0].tolist() == [2.0, 4.0, 8.0, 1.0]
     # rays with mask +1 and -1 count, the mask-0 ray (metric error 92) does not; the mean is over all 4 rays
     expected = (4.0 + 4.0 + 0.0 + 0.0) / 4 if space == "metric" else ((0.5 - 0.25) ** 2 + (0.25 - 0.5) ** 2) / 4
+    if limit is not None:
+        expected = (3.0 + 3.0) / 4  # each error of 2 counts 1 * (2 * 2 - 1)
     assert result.value.item() == pytest.approx(expected)
+
+
+def test_the_depth_error_limit_reaches_every_masked_depth_term():
+    from types import SimpleNamespace
+
+    from simplenerf.method.objective import MaskedDepthTerm, Objective, build_terms
+    from simplenerf.method.reliability import TrustAll
+
+    objective = Objective(coarse_fine_mask=TrustAll(), depth_error_limit=0.5)
+    points = SimpleNamespace(name="points", depth_weight=0.1, mask=TrustAll(), stage="coarse",
+                             concentration_weight=None)
+    masked = [t for t in build_terms(objective, [points], {}).values() if isinstance(t, MaskedDepthTerm)]
+    assert [(t.name, t.depth_error_limit) for t in masked] == [("points", 0.5), ("cfc", 0.5)]
 
 
 def test_a_scheduled_tv_weight_is_applied_and_logged(batch, monkeypatch):

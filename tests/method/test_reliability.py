@@ -15,6 +15,7 @@ from simplenerf.geometry.views import Views
 from simplenerf.method.reliability import (
     PatchReprojectionMask,
     TrustAll,
+    limited_square,
     mask_fractions,
     masked_depth_loss,
     nearest_views,
@@ -329,6 +330,24 @@ def test_trust_all_gives_gradient_to_both():
     assert loss == pytest.approx((4 + 1 + 4 + 4) / 4)
     assert g_main == pytest.approx([-1.0, 0.5, -1.0, 1.0])
     assert g_other == pytest.approx([1.0, -0.5, 1.0, -1.0])
+
+
+def test_limited_square_is_the_square_up_to_the_limit_and_linear_past_it():
+    error = torch.tensor([-3.0, -1.0, 0.5, 1.0, 10.0], requires_grad=True)
+    assert limited_square(error, None).tolist() == [9.0, 1.0, 0.25, 1.0, 100.0]
+    limited = limited_square(error, 1.0)
+    assert limited.tolist() == [5.0, 1.0, 0.25, 1.0, 19.0]  # 1 * (2 |e| - 1) past 1: continuous at the limit
+    limited.sum().backward()
+    assert error.grad.tolist() == [-2.0, -2.0, 1.0, 2.0, 2.0]  # the gradient of one ray is at most 2 * limit
+
+
+def test_a_limit_bounds_the_masked_loss_of_a_ray_whose_depth_ran_away():
+    z_main = torch.tensor([1.0, 2.0, 3.0, 4.0], requires_grad=True)
+    z_other = torch.tensor([3.0, 1.0, 5.0, 102.0])  # ray 4: the other depth near the far plane
+    loss = masked_depth_loss(z_main, z_other, torch.tensor([1.0, 1.0, 0.0, 1.0]), "one_way", limit=2.0)
+    assert loss.item() == pytest.approx((4.0 + 1.0 + 0.0 + 2.0 * (2 * 98 - 2)) / 4)  # squared: (4 + 1 + 98^2) / 4
+    loss.backward()
+    assert z_main.grad.tolist() == pytest.approx([-1.0, 0.5, 0.0, -1.0])
 
 
 def test_masked_loss_stays_finite_for_non_finite_masked_out_depths():

@@ -85,21 +85,6 @@ def color_spread_loss(weights: torch.Tensor, sample_rgb: torch.Tensor, rgb: torc
     return (weights * (sample_rgb - rgb[:, None, :]).pow(2).sum(-1)).sum(-1).mean()
 
 
-def weight_color_spread_loss(weights: torch.Tensor, sample_rgb: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
-    """`color_spread_loss` as a force on the weights only: the samples' colours under stop-gradient, the spread taken
-    about their weight-normalised mean and divided by the accumulation, sum_i w_i |c_i - C|^2 / sum_i w_i, mean over
-    rays. Its gradient moves weight toward the samples whose colour is the ray's; it cannot be met by making the
-    colours alike along the ray, nor by emptying the ray. Not in the paper.
-
-    Args:
-        weights: [R, S]. sample_rgb: [R, S, 3].
-    """
-    colors = sample_rgb.detach()
-    acc = weights.sum(-1, keepdim=True) + eps  # [R, 1]
-    mean = (weights[..., None] * colors).sum(-2) / acc  # [R, 3]
-    return ((weights * (colors - mean[:, None, :]).pow(2).sum(-1)).sum(-1, keepdim=True) / acc).mean()
-
-
 def distortion_loss(weights: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     """Mip-NeRF 360's distortion loss (Barron et al., CVPR 2022, eq. 15), on sorted samples: low when each ray's
     weight sits in one short interval (a surface), high when it is spread along the ray (a fog, whose mean depth

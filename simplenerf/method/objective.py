@@ -31,7 +31,6 @@ from simplenerf.method.losses import (
     distortion_loss,
     mass_concentration_loss,
     sparse_depth_loss,
-    weight_color_spread_loss,
 )
 from simplenerf.method.reliability import (
     Direction,
@@ -89,11 +88,6 @@ class Objective:
             "fine_color_spread", each scheduled on its own); 0: off. Not in the paper; against renders whose colour is a
             blend along the ray, which smear from other views (docs/results.md "Where the blur and the streaks come
             from", 13).
-        color_spread_gradient: what the colour-spread term may move. "all": the weights and the samples' colours, so
-            it can also be met by making the colours alike along a ray whose weight stays spread (the streak itself;
-            docs/results.md, "Where the blur and the streaks come from", 13, seed 1). "weights": the samples'
-            colours under stop-gradient and the spread taken about their weight-normalised mean and divided by the
-            accumulation, so the term can only gather each ray's weight onto the samples whose colour is the ray's.
         terms: further terms (`Term` subclasses by `class_path`, e.g. a user's own), summed after the built-in ones;
             each is logged and scheduled by its `name` like them.
     """
@@ -111,7 +105,6 @@ class Objective:
     concentration_bins: int = 5
     distortion_weight: float = 0.0
     color_spread_weight: float = 0.0
-    color_spread_gradient: Literal["all", "weights"] = "all"
     terms: list[Term] = field(default_factory=list)
 
 
@@ -257,16 +250,13 @@ class ColorSpreadTerm(Term):
     """The spread of a main render's sample colours about its rendered colour (`losses.color_spread_loss`), on the
     random rays."""
 
-    def __init__(self, stage: Literal["coarse", "fine"], weight: float,
-                 gradient: Literal["all", "weights"] = "all") -> None:
+    def __init__(self, stage: Literal["coarse", "fine"], weight: float) -> None:
         super().__init__(f"{stage}_color_spread", weight, ("random",))
-        self.stage, self.gradient = stage, gradient
+        self.stage = stage
 
     def value(self, rendered: RenderedRays) -> TermValue:
         render = rendered.renders[self.stage]
-        if self.gradient == "all":
-            return TermValue(color_spread_loss(render.weights, render.sample_rgb, render.rgb))
-        return TermValue(weight_color_spread_loss(render.weights, render.sample_rgb))
+        return TermValue(color_spread_loss(render.weights, render.sample_rgb, render.rgb))
 
 
 class RegularizerTerm(Term):
@@ -300,8 +290,7 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
               if aug.concentration_weight is not None]
     terms.append(ConcentrationTerm("fine", objective.fine_concentration_weight, objective.concentration_bins))
     terms += [DistortionTerm(stage, objective.distortion_weight) for stage in ("coarse", "fine")]
-    terms += [ColorSpreadTerm(stage, objective.color_spread_weight, objective.color_spread_gradient)
-              for stage in ("coarse", "fine")]
+    terms += [ColorSpreadTerm(stage, objective.color_spread_weight) for stage in ("coarse", "fine")]
     if objective.coarse_fine_mask is not None:
         cfc_depth = depth | {"supervision": objective.coarse_fine_supervision or objective.supervision}
         terms.append(MaskedDepthTerm("cfc", objective.coarse_fine_weight, objective.coarse_fine_mask, "coarse", "fine",

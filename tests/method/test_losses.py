@@ -9,13 +9,7 @@ import torch
 from simplenerf.data.batches import RayBatch
 from simplenerf.geometry.rays import make_rays
 from simplenerf.method.augmentations import Augmentation
-from simplenerf.method.losses import (
-    bin_sizes,
-    color_spread_loss,
-    distortion_loss,
-    mass_concentration_loss,
-    weight_color_spread_loss,
-)
+from simplenerf.method.losses import bin_sizes, color_spread_loss, distortion_loss, mass_concentration_loss
 from simplenerf.method.module import SimpleNeRF
 from simplenerf.method.objective import Objective, RenderedRays, part_loss
 from simplenerf.method.reliability import PatchReprojectionMask
@@ -181,20 +175,6 @@ def test_color_spread_is_zero_for_one_colour_along_the_ray_and_the_variance_of_a
     assert color_spread_loss(w, c, rgb).item() == pytest.approx(3 * 0.25 / 2)  # mean over rays
 
 
-def test_weight_only_color_spread_moves_weight_toward_the_rays_colour_and_never_the_colours():
-    w = torch.tensor([[0.0, 0.3, 0.1, 0.0], [0.0, 0.5, 0.0, 0.0]], requires_grad=True)
-    c = torch.zeros(2, 4, 3)
-    c[0, 1] = 1.0  # ray 0: white at weight 0.3, black at 0.1: mean 0.75, variance 3 * 0.1875 about it
-    c[1] = 0.3  # ray 1: one colour, half the accumulation
-    c.requires_grad_(True)
-    loss = weight_color_spread_loss(w, c)
-    assert loss.item() == pytest.approx(3 * 0.1875 / 2, rel=1e-5)  # by the accumulation: ray 1 scores 0
-    loss.backward()
-    assert c.grad is None or not c.grad.any()
-    assert w.grad[0, 1] < 0 < w.grad[0, 2]  # weight moves onto the majority colour's sample, off the outlier
-    assert w.grad[1].abs().max() < 1e-9  # one colour on the ray, even at half the accumulation: no force
-
-
 def test_the_objective_puts_the_color_spread_on_both_main_renders():
     _, renders, part = main_render_terms(Objective(color_spread_weight=0.1))
     assert set(part.values) == {"color", "coarse_color_spread", "fine_color_spread"}
@@ -205,7 +185,3 @@ def test_the_objective_puts_the_color_spread_on_both_main_renders():
                                color_spread_loss(fine.weights, fine.sample_rgb, fine.rgb))
     torch.testing.assert_close(part.loss, part.values["color"] + 0.1 * (part.values["coarse_color_spread"]
                                                                         + part.values["fine_color_spread"]))
-    _, renders, part = main_render_terms(Objective(color_spread_weight=0.1, color_spread_gradient="weights"))
-    fine = renders.main.fine
-    torch.testing.assert_close(part.values["fine_color_spread"],
-                               weight_color_spread_loss(fine.weights, fine.sample_rgb))

@@ -107,6 +107,11 @@ class Objective:
     color_spread_weight: float = 0.0
     terms: list[Term] = field(default_factory=list)
 
+    def __post_init__(self) -> None:
+        if self.depth_error_limit is not None and not self.depth_error_limit > 0:
+            raise ValueError(f"depth_error_limit must be a positive depth difference or null, got "
+                             f"{self.depth_error_limit}")
+
 
 @dataclass
 class Renders:

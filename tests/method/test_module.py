@@ -333,6 +333,8 @@ def test_the_depth_error_limit_reaches_every_masked_depth_term():
                              concentration_weight=None)
     masked = [t for t in build_terms(objective, [points], {}).values() if isinstance(t, MaskedDepthTerm)]
     assert [(t.name, t.depth_error_limit) for t in masked] == [("points", 0.5), ("cfc", 0.5)]
+    with pytest.raises(ValueError, match="depth_error_limit must be a positive"):
+        Objective(depth_error_limit=0.0)
 
 
 def test_a_scheduled_tv_weight_is_applied_and_logged(batch, monkeypatch):

@@ -22,6 +22,7 @@ import math
 from typing import Literal
 
 import torch
+import torch.nn.functional as F
 
 from simplenerf.data.batches import RayBatch
 from simplenerf.geometry.views import Views, nearest_views
@@ -170,8 +171,7 @@ def limited_square(error: torch.Tensor, limit: float | None) -> torch.Tensor:
     for a step (docs/results.md, "Where the blur and the streaks come from", 14)."""
     if limit is None:
         return error.square()
-    magnitude = error.abs()
-    return torch.where(magnitude <= limit, error.square(), limit * (2.0 * magnitude - limit))
+    return 2.0 * F.huber_loss(error, torch.zeros_like(error), reduction="none", delta=limit)  # 0.5 e^2 below delta
 
 
 def masked_depth_loss(

@@ -3,7 +3,7 @@
 Fields: stage, key, digest (of what the job computes, `plan.Unit.digest`), status (running / done / failed),
 started, ended (ISO times of the last attempt), wall_s (seconds over all attempts), attempts, host, pid, job_id
 (SLURM's, `<array>_<task>` in an array; the local process's), error (the failure's one line), steps (training steps
-done, read from the checkpoints' names), and for a test the `fit_ended` of the fit it scored.
+done, read from the checkpoints: `checkpoint_steps`), and for a test the `fit_ended` of the fit it scored.
 
 A job whose process is gone while its state says running (killed, out of memory, the machine rebooted) shows as
 `stopped`; the next sweep resumes it. `read_status` gives the status the status table shows.
@@ -55,11 +55,28 @@ def job_id() -> str:
 
 
 def checkpoint_steps(folder: Path) -> int | None:
-    """The highest step among a run's checkpoints (`checkpoints/step000500.ckpt`, `hpc_ckpt_N.ckpt` has no step in its
-    name), without loading any; None without one."""
-    steps = [int(m.group(1)) for p in (Path(folder) / "checkpoints").glob("step*.ckpt")
-             if (m := re.fullmatch(r"step(\d+)\.ckpt", p.name))]
+    """The highest step among a run's checkpoints: the periodic ones by name (`checkpoints/step000500.ckpt`), and
+    `checkpoints/last.ckpt` by its `global_step` (a fit stopped by a signal saves there at the step it reached, between
+    periodic ones; read memory-mapped, without its tensors). None without one. (`hpc_ckpt_N.ckpt`, SLURM's requeue
+    checkpoint in the run's folder, has no step in its name and is not read.)"""
+    checkpoints = Path(folder) / "checkpoints"
+    steps = [int(m.group(1)) for p in checkpoints.glob("step*.ckpt") if (m := re.fullmatch(r"step(\d+)\.ckpt", p.name))]
+    if (last := _saved_step(checkpoints / "last.ckpt")) is not None:
+        steps.append(last)
     return max(steps) if steps else None
+
+
+def _saved_step(path: Path) -> int | None:
+    """`global_step` of a Lightning checkpoint, None if there is none or it cannot be read (being written, damaged)."""
+    if not path.is_file():
+        return None
+    import torch
+
+    try:
+        step = torch.load(path, map_location="cpu", mmap=True, weights_only=False).get("global_step")
+    except Exception:  # noqa: BLE001 - a half-written or foreign file only means no step from it
+        return None
+    return step if isinstance(step, int) else None
 
 
 def process_alive(state: dict) -> bool | None:

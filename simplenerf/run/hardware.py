@@ -191,7 +191,7 @@ def cpu_budget_hint(device: torch.device, mlp_fields: bool, max_steps: int | Non
         return None
     return (f"this fit trains the paper's MLP fields for {max_steps} steps, a GPU's budget: on a CPU that takes days "
             "(the progress line's eta says how many). Without a GPU, train the grid instead: "
-            "configs/grid/simplerf_images4.yaml, at the paper's resolution in about an hour of one CPU thread "
+            "configs/grid/simplerf_images4.yaml, at the paper's resolution in 1-2 hours of one CPU thread "
             "(README, \"Your own photos\")")
 
 

@@ -68,15 +68,13 @@ def checkpoint_steps(folder: Path) -> int | None:
 
 def _saved_step(path: Path) -> int | None:
     """`global_step` of a Lightning checkpoint, None if there is none or it cannot be read (being written, damaged)."""
-    if not path.is_file():
-        return None
-    import torch
+    from simplenerf.errors import CheckpointError
+    from simplenerf.run.checks import read_checkpoint
 
     try:
-        step = torch.load(path, map_location="cpu", mmap=True, weights_only=False).get("global_step")
-    except Exception:  # noqa: BLE001 - a half-written or foreign file only means no step from it
+        return int(read_checkpoint(path, mmap=True).get("global_step", 0))
+    except CheckpointError:
         return None
-    return step if isinstance(step, int) else None
 
 
 def process_alive(state: dict) -> bool | None:

@@ -63,12 +63,13 @@ def preflight_outputs(parts: list[object], trainer: L.Trainer, stage: str) -> No
 SPECIAL_CHECKPOINTS = ("best", "hpc")  # Lightning's own meanings of --ckpt_path, passed through unchecked
 
 
-def read_checkpoint(path: Path) -> dict:
-    """The checkpoint at `path` loaded on the CPU; CheckpointError naming the file if it is missing or unreadable."""
+def read_checkpoint(path: Path, mmap: bool = False) -> dict:
+    """The checkpoint at `path` loaded on the CPU (`mmap`: its tensors memory-mapped, read only when used);
+    CheckpointError naming the file if it is missing or unreadable."""
     if not path.is_file():
         raise CheckpointError(f"checkpoint {path} {absent(path, folder=False)}")
     try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+        checkpoint = torch.load(path, map_location="cpu", mmap=mmap, weights_only=False)
     except Exception as e:  # a truncated zip, a pickle of something else, an empty file: all unreadable
         reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise CheckpointError(f"cannot read checkpoint {path} (truncated or not a checkpoint: {reason})") from None

@@ -38,9 +38,9 @@ def status_rows(folder: Path) -> list[dict[str, str]]:
         state = state or {}
         steps = ""
         if unit.stage in ("fit", "dense") and status != "pending":
-            done, total = checkpoint_steps(Path(unit.folder)), state.get("max_steps")
-            if status == "done" and total:  # a done fit reached max_steps (its last.ckpt has no step in its name)
-                done = total
+            total = state.get("max_steps")
+            # a done fit reached max_steps: no need to open its last.ckpt for the step (checkpoint_steps would)
+            done = total if status == "done" and total else checkpoint_steps(Path(unit.folder))
             steps = f"{done or 0}/{total}" if total else str(done or 0)
         rows.append({"stage": unit.stage, "scene": unit.labels.get("scene", ""), "views": unit.labels.get("views", ""),
                      "model": unit.labels.get("model", ""), "seed": unit.labels.get("seed", ""), "status": status,

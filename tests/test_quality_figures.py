@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from benchmarks.quality.mask_accuracy import pair_scores
-from benchmarks.quality.streak_index import axis_ratio, streak_index
+from benchmarks.quality.streak_index import axis_ratio, streak_index, strip_ratios
 from benchmarks.quality.texture_in_depth import flat_pixels, score
 
 
@@ -62,6 +62,26 @@ def test_streak_index_divides_by_the_photos_ratio(tmp_path):
     cv2.imwrite(str(run / "test" / "rgb" / "DJI_1.png"), photo)
     assert streak_index(run, [*photos, named]) == pytest.approx({"depth": (6.0 + 1.5) / 2, "render": 0.625,
                                                                  "frames": 2})
+
+
+def test_strip_ratios_place_the_streaks_across_the_frame(tmp_path):
+    rows, cols = np.mgrid[0:6, 0:8].astype(float)
+    depth = rows + cols  # ratio 1 everywhere ...
+    depth[:, 4:] = 3.0 * rows[:, 4:] + cols[:, 4:]  # ... but 3 in the right half: smeared along rows there
+    assert strip_ratios(depth, 2) == pytest.approx([1.0, 3.0])
+    assert strip_ratios(depth, 4) == pytest.approx([1.0, 1.0, 3.0, 3.0])  # each strip's own columns only
+    with pytest.raises(SystemExit, match="at least 2 columns"):
+        strip_ratios(depth, 5)
+    photo = np.repeat((10.0 * rows + 20.0 * cols)[..., None], 3, axis=-1).astype(np.uint8)  # ratio 0.5 in each strip
+    cv2.imwrite(str(tmp_path / "000.png"), photo)
+    run = tmp_path / "run"
+    (run / "test" / "depth").mkdir(parents=True)
+    (run / "test" / "rgb").mkdir()
+    np.save(run / "test" / "depth" / "image000.npy", depth)
+    cv2.imwrite(str(run / "test" / "rgb" / "image000.png"), photo)
+    index = streak_index(run, [tmp_path / "000.png"], strips=2)
+    assert index["depth_strips"] == pytest.approx([2.0, 6.0]) and index["render_strips"] == pytest.approx([1.0, 1.0])
+    assert index["depth"] == pytest.approx(axis_ratio(depth) / 0.5)  # the whole frame's index is unchanged
 
 
 def test_blur_calibration_degrades_as_named():

@@ -4,6 +4,10 @@ columns|, divided by the same ratio of the held-out photo. 1: as isotropic as th
 (horizontal streaks); below 1: along columns. A frame is matched to the photo of the scene's `images_<factor>`
 folder with the same name, else by the index its name ends with (`image008` -> the 9th photo).
 
+`--strips N` also gives the index of N vertical strips of equal width, left to right (each strip's ratio over the
+photo's ratio in the same strip): where across the frame the streaks are (docs/results.md, "Where the blur and the
+streaks come from", 16).
+
     python -m benchmarks.quality.streak_index runs/grid/fern_seed0_simplenerf --scene ../shared/data/nerf_llff_data/fern
 """
 
@@ -26,10 +30,22 @@ def axis_ratio(values: np.ndarray) -> float:
     return float(np.abs(np.diff(values, axis=0)).mean() / np.abs(np.diff(values, axis=1)).mean())
 
 
-def streak_index(run: Path, photos: list[Path]) -> dict[str, float]:
-    """Mean streak index over the run's test frames, of the depth maps and of the renders."""
+def strip_ratios(values: np.ndarray, strips: int) -> np.ndarray:
+    """`axis_ratio` of each of `strips` vertical strips of an [H, W] or [H, W, C] map, left to right: [strips]. A strip
+    is the columns [i W / strips, (i + 1) W / strips); its column differences stay within it."""
+    width = values.shape[1]
+    edges = [i * width // strips for i in range(strips + 1)]
+    spans = list(zip(edges[:-1], edges[1:], strict=True))
+    if min(b - a for a, b in spans) < 2:
+        raise SystemExit(f"{strips} strips of a map {width} pixels wide: each strip needs at least 2 columns")
+    return np.array([axis_ratio(values[:, a:b]) for a, b in spans])
+
+
+def streak_index(run: Path, photos: list[Path], strips: int = 0) -> dict[str, float | list[float]]:
+    """Mean streak index over the run's test frames, of the depth maps and of the renders; with `strips`, also per
+    vertical strip (`depth_strips`, `render_strips`: lists left to right)."""
     by_name = {p.stem: p for p in photos}
-    depth, render = [], []
+    depth, render, depth_strips, render_strips = [], [], [], []
     for path in sorted((run / "test" / "depth").glob("*.npy")):
         found = re.search(r"(\d+)$", path.stem)
         if path.stem not in by_name and (found is None or int(found.group(1)) >= len(photos)):
@@ -42,9 +58,17 @@ def streak_index(run: Path, photos: list[Path]) -> dict[str, float]:
         depth.append(axis_ratio(np.load(path)) / reference)
         rgb = cv2.imread(str(run / "test" / "rgb" / f"{path.stem}.png"))
         render.append(axis_ratio(rgb) / reference)
+        if strips:
+            photo_strips = strip_ratios(photo, strips)
+            depth_strips.append(strip_ratios(np.load(path), strips) / photo_strips)
+            render_strips.append(strip_ratios(rgb, strips) / photo_strips)
     if not depth:
         raise SystemExit(f"{run}: no test/depth/*.npy (run `simplenerf test` on it first)")
-    return {"depth": float(np.mean(depth)), "render": float(np.mean(render)), "frames": len(depth)}
+    index = {"depth": float(np.mean(depth)), "render": float(np.mean(render)), "frames": len(depth)}
+    if strips:
+        index |= {"depth_strips": np.mean(depth_strips, axis=0).tolist(),
+                  "render_strips": np.mean(render_strips, axis=0).tolist()}
+    return index
 
 
 def main() -> None:
@@ -52,13 +76,16 @@ def main() -> None:
     parser.add_argument("runs", nargs="+", help="run folders with test/depth/*.npy and test/rgb/*.png")
     parser.add_argument("--scene", required=True, help="the LLFF scene folder the runs were tested on")
     parser.add_argument("--factor", type=int, default=8, help="the images_<factor> the runs were tested at")
+    parser.add_argument("--strips", type=int, default=0,
+                        help="also the index of this many vertical strips, left to right (0: the whole frame only)")
     args = parser.parse_args()
     folder = Path(args.scene) / f"images_{args.factor}"
     photos = sorted(p for p in folder.glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
     if not photos:
         raise SystemExit(f"{folder}: no photos")
     for run in args.runs:
-        print(json.dumps({"run": run, **{k: round(v, 3) for k, v in streak_index(Path(run), photos).items()}}))
+        index = streak_index(Path(run), photos, args.strips)
+        print(json.dumps({"run": run, **{k: np.round(v, 3).tolist() for k, v in index.items()}}))
 
 
 if __name__ == "__main__":

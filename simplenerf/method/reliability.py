@@ -83,6 +83,13 @@ def _source_patches(
     return _gather_patches(images, view, centre, patch_size), inside
 
 
+def patch_texture(patches: torch.Tensor) -> torch.Tensor:
+    """How much texture k x k RGB patches [R, k * k, 3] hold: the standard deviation over the patch's pixels, averaged
+    over the channels -> [R]. A plain patch (a white wall) matches every plain patch it lands on, so its reprojection
+    error cannot tell a right depth from a wrong one."""
+    return patches.std(dim=1, unbiased=False).mean(dim=-1)
+
+
 def _reprojection_error(
     views: Views, rays: RayBatch, depth: torch.Tensor, source: torch.Tensor, inside: torch.Tensor, patch_size: int,
     require_in_front: bool = True,
@@ -234,6 +241,13 @@ class ReprojectionErrors:
                                                        require_in_front)
         return self._errors[key]
 
+    def texture(self, patch_size: int) -> torch.Tensor:
+        """[R] `patch_texture` of the rays' own k x k patches (0 where the patch does not fit in the image)."""
+        if patch_size not in self._sources:
+            self._sources[patch_size] = _source_patches(self.views.images, self.rays.view, self.rays.uv, patch_size)
+        source, inside = self._sources[patch_size]
+        return torch.where(inside, patch_texture(source), torch.zeros_like(inside, dtype=source.dtype))
+
 
 class ReliabilityMask(abc.ABC):
     """Decides, per ray, which of two depth estimates supervises the other (Sec. 4.2)."""
@@ -256,7 +270,10 @@ class ReliabilityMask(abc.ABC):
 class PatchReprojectionMask(ReliabilityMask):
     """The paper's mask: the depth whose k x k patch reprojects better into the nearest train view, if good enough."""
 
-    def __init__(self, patch_size: int = 5, error_threshold: float = 0.1, require_in_front: bool = True) -> None:
+    def __init__(
+        self, patch_size: int = 5, error_threshold: float = 0.1, require_in_front: bool = True,
+        require_both_valid: bool = False, min_texture: float = 0.0,
+    ) -> None:
         """
         Args:
             patch_size: side k of the square patch compared between views (odd).
@@ -265,12 +282,23 @@ class PatchReprojectionMask(ReliabilityMask):
                 release (`loss_functions/*DepthLoss02.py`, `utils/CommonUtils01.reproject`) has no such check: a
                 point behind the camera projects through the pinhole mirrored and may be compared with an unrelated
                 patch. False reproduces the release (used by `benchmarks/equivalence/check.py`).
+            require_both_valid: judge a ray only where both depths' patches land in the nearest view (mask 0
+                elsewhere). False (the paper, eq. 6, and the release): a depth that leaves the view has error inf, so
+                the other depth wins whenever its own error is below e_tau; at the edge of what the nearest view sees,
+                a wrong depth that lands in a plain region of it is then trusted over a right one that leaves it
+                (docs/results.md, "Where the blur and the streaks come from", 16).
+            min_texture: judge a ray only where its own k x k patch has at least this `patch_texture` (images in
+                [0, 1]; mask 0 elsewhere). 0 (the paper and the release): every ray is judged, also in plain regions,
+                where any depth that lands on a plain patch passes e_tau and the two depths win by chance (16).
         """
         _check_patch_size(patch_size)
         if not error_threshold > 0:
             raise ValueError(f"error_threshold must be positive, got {error_threshold}")
         self.patch_size, self.error_threshold = patch_size, error_threshold
-        self.require_in_front = require_in_front
+        if not min_texture >= 0:
+            raise ValueError(f"min_texture must be >= 0, got {min_texture}")
+        self.require_in_front, self.require_both_valid = require_in_front, require_both_valid
+        self.min_texture = min_texture
 
     def errors(
         self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor
@@ -281,14 +309,20 @@ class PatchReprojectionMask(ReliabilityMask):
                 errors("other", z_other, self.patch_size, self.require_in_front))
 
     def __call__(self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor) -> torch.Tensor:
-        return ternary_mask(*self.errors(views, rays, z_main, z_other), self.error_threshold)
+        return self.judge(ReprojectionErrors(views, rays), "main", z_main, "other", z_other)
 
     def judge(
         self, errors: ReprojectionErrors, main: str, z_main: torch.Tensor, other: str, z_other: torch.Tensor
     ) -> torch.Tensor:
         e_main = errors(main, z_main, self.patch_size, self.require_in_front)
         e_other = errors(other, z_other, self.patch_size, self.require_in_front)
-        return ternary_mask(e_main, e_other, self.error_threshold)
+        mask = ternary_mask(e_main, e_other, self.error_threshold)
+        judged = torch.ones_like(mask, dtype=torch.bool)
+        if self.require_both_valid:
+            judged = judged & torch.isfinite(e_main) & torch.isfinite(e_other)
+        if self.min_texture > 0:
+            judged = judged & (errors.texture(self.patch_size) >= self.min_texture)
+        return torch.where(judged, mask, torch.zeros_like(mask))
 
 
 class TrustAll(ReliabilityMask):

@@ -14,12 +14,14 @@ from simplenerf.geometry.rays import RayBundle, pixel_rays, project
 from simplenerf.geometry.views import Views
 from simplenerf.method.reliability import (
     PatchReprojectionMask,
+    ReprojectionErrors,
     TrustAll,
     limited_square,
     mask_fractions,
     masked_depth_loss,
     nearest_views,
     patch_reprojection_error,
+    patch_texture,
     ternary_mask,
 )
 from simplenerf.synthetic.generate import make_synthetic_scene
@@ -261,6 +263,67 @@ def test_patch_mask_semantics_on_exact_depth(sharp_views):
     assert both_bad.sum() > 100
     assert (mask_of(*ctx, z_near, z_far)[both_bad] == 0).all()
     assert (mask_of(*ctx, z_true, z_true) == 0).all()  # equal depths tie everywhere
+
+
+def test_require_both_valid_judges_only_rays_where_both_depths_land_in_the_nearest_view(sharp_views):
+    batch = pixel_grid(sharp_views, stride=4)
+    z_true, z_behind = batch["depth"], -batch["depth"]  # behind both cameras: never valid (require_in_front)
+    ctx = context(sharp_views, batch)
+    e_true, valid = error_of(sharp_views, batch, z_true)
+    e_behind, valid_behind = error_of(sharp_views, batch, z_behind)
+    assert not valid_behind.any()
+    good = valid & (e_true < THRESHOLD)
+    assert good.sum() > 0.3 * len(z_true)
+    paper = PatchReprojectionMask(K, THRESHOLD)
+    both = PatchReprojectionMask(K, THRESHOLD, require_both_valid=True)
+    # eq. 6: the depth that leaves the view has error inf, so the other wins wherever its error is below e_tau ...
+    assert (paper(*ctx, z_behind, z_true)[good] == 1).all() and (paper(*ctx, z_true, z_behind)[good] == -1).all()
+    # ... with require_both_valid neither is trusted there,
+    assert (both(*ctx, z_behind, z_true) == 0).all() and (both(*ctx, z_true, z_behind) == 0).all()
+    # With a depth that leaves the view on some rays only: the paper's mask where both land, 0 elsewhere (also
+    # through `judge`, the training step's path).
+    z_near = z_true * 0.6
+    _, valid_near = error_of(sharp_views, batch, z_near)
+    both_land = valid & valid_near
+    assert both_land.any() and (good & ~valid_near).any()  # the paper's mask trusts z_true on those: +1
+    expected = torch.where(both_land, paper(*ctx, z_near, z_true), torch.zeros_like(z_true))
+    assert torch.equal(both(*ctx, z_near, z_true), expected)
+    errors = ReprojectionErrors(*ctx)
+    assert torch.equal(both.judge(errors, "near", z_near, "true", z_true), expected)
+    assert (both.judge(errors, "behind", z_behind, "true", z_true) == 0).all()
+
+
+def test_patch_texture_is_the_patchs_pixel_spread():
+    plain = torch.full((1, 25, 3), 0.4)
+    halves = torch.zeros(1, 4, 3)
+    halves[:, 2:, 0] = 1.0  # red 0, 0, 1, 1: std 0.5; green and blue plain
+    assert patch_texture(torch.cat([plain[:, :4], halves])).tolist() == pytest.approx([0.0, 0.5 / 3])
+
+
+def test_min_texture_judges_only_rays_whose_own_patch_is_textured(sharp_views):
+    # Every view's left half painted one grey with a little noise (a plain wall): there every depth that lands on
+    # the wall passes e_tau and the noise decides which of two depths wins; min_texture leaves those rays unjudged,
+    # and the textured rays keep the paper's mask.
+    images = sharp_views.images.clone()
+    wall = images[:, :, : sharp_views.width // 2]
+    wall[...] = 0.5 + 0.005 * torch.randn(wall.shape, generator=torch.Generator().manual_seed(0))
+    views = Views(images, sharp_views.intrinsics, sharp_views.c2w, sharp_views.names, sharp_views.depths)
+    batch = pixel_grid(views, stride=4)
+    ctx = context(views, batch)
+    z_true, z_near = batch["depth"], batch["depth"] * 0.6
+    errors = ReprojectionErrors(*ctx)
+    texture = errors.texture(K)
+    plain = batch["uv"][:, 0] < views.width // 2 - K // 2  # the patch lies on the wall
+    assert (texture[plain] < 0.01).all() and (texture[~plain & (texture > 0)] > 0.02).float().mean() > 0.9
+    paper = PatchReprojectionMask(K, THRESHOLD)(*ctx, z_near, z_true)
+    textured = PatchReprojectionMask(K, THRESHOLD, min_texture=0.02)
+    mask = textured(*ctx, z_near, z_true)
+    assert (paper[plain] == 1).any() and (paper[plain] == -1).any()  # won by chance, both ways
+    assert (mask[plain] == 0).all()
+    expected = torch.where(texture >= 0.02, paper, torch.zeros_like(paper))
+    assert torch.equal(mask, expected) and torch.equal(textured.judge(errors, "near", z_near, "true", z_true), expected)
+    with pytest.raises(ValueError, match="min_texture"):
+        PatchReprojectionMask(min_texture=-0.1)
 
 
 def test_patch_mask_is_zero_near_the_border(train_views):

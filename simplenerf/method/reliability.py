@@ -218,7 +218,7 @@ def masked_depth_loss(
 class ReprojectionErrors:
     """The patch reprojection errors (`patch_reprojection_error`) of depths of one batch of train rays, each computed
     once: in a training step the main coarse depth is judged by three pairs (L_ap, L_av, L_cfc), and its error, like
-    the source patches, is shared by them."""
+    the source patches and their texture, is shared by them."""
 
     def __init__(self, views: Views, rays: RayBatch) -> None:
         """
@@ -228,25 +228,31 @@ class ReprojectionErrors:
         self.views, self.rays = views, rays
         self._sources: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
         self._errors: dict[tuple[str, int, bool], torch.Tensor] = {}
+        self._textures: dict[int, torch.Tensor] = {}
+
+    def _source(self, patch_size: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The rays' own k x k patches [R, k * k, 3] and whether each fits in its image [R], gathered once."""
+        if patch_size not in self._sources:
+            self._sources[patch_size] = _source_patches(self.views.images, self.rays.view, self.rays.uv, patch_size)
+        return self._sources[patch_size]
 
     def __call__(self, name: str, depth: torch.Tensor, patch_size: int, require_in_front: bool = True) -> torch.Tensor:
         """[R] error of depth [R] (inf where invalid); `name` says which render the depth is (e.g. "coarse"): the same
         name with the same patch rule is computed once."""
         key = (name, patch_size, require_in_front)
         if key not in self._errors:
-            if patch_size not in self._sources:
-                self._sources[patch_size] = _source_patches(self.views.images, self.rays.view, self.rays.uv, patch_size)
-            source, inside = self._sources[patch_size]
+            source, inside = self._source(patch_size)
             self._errors[key], _ = _reprojection_error(self.views, self.rays, depth, source, inside, patch_size,
                                                        require_in_front)
         return self._errors[key]
 
     def texture(self, patch_size: int) -> torch.Tensor:
-        """[R] `patch_texture` of the rays' own k x k patches (0 where the patch does not fit in the image)."""
-        if patch_size not in self._sources:
-            self._sources[patch_size] = _source_patches(self.views.images, self.rays.view, self.rays.uv, patch_size)
-        source, inside = self._sources[patch_size]
-        return torch.where(inside, patch_texture(source), torch.zeros_like(inside, dtype=source.dtype))
+        """[R] `patch_texture` of the rays' own k x k patches (0 where the patch does not fit in the image), computed
+        once."""
+        if patch_size not in self._textures:
+            source, inside = self._source(patch_size)
+            self._textures[patch_size] = torch.where(inside, patch_texture(source), torch.zeros((), dtype=source.dtype))
+        return self._textures[patch_size]
 
 
 class ReliabilityMask(abc.ABC):
@@ -317,12 +323,11 @@ class PatchReprojectionMask(ReliabilityMask):
         e_main = errors(main, z_main, self.patch_size, self.require_in_front)
         e_other = errors(other, z_other, self.patch_size, self.require_in_front)
         mask = ternary_mask(e_main, e_other, self.error_threshold)
-        judged = torch.ones_like(mask, dtype=torch.bool)
         if self.require_both_valid:
-            judged = judged & torch.isfinite(e_main) & torch.isfinite(e_other)
+            mask = torch.where(torch.isfinite(e_main) & torch.isfinite(e_other), mask, 0.0)
         if self.min_texture > 0:
-            judged = judged & (errors.texture(self.patch_size) >= self.min_texture)
-        return torch.where(judged, mask, torch.zeros_like(mask))
+            mask = torch.where(errors.texture(self.patch_size) >= self.min_texture, mask, 0.0)
+        return mask
 
 
 class TrustAll(ReliabilityMask):

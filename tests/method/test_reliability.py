@@ -313,6 +313,7 @@ def test_min_texture_judges_only_rays_whose_own_patch_is_textured(sharp_views):
     z_true, z_near = batch["depth"], batch["depth"] * 0.6
     errors = ReprojectionErrors(*ctx)
     texture = errors.texture(K)
+    assert errors.texture(K) is texture  # computed once per batch, shared by the three masks
     plain = batch["uv"][:, 0] < views.width // 2 - K // 2  # the patch lies on the wall
     assert (texture[plain] < 0.01).all() and (texture[~plain & (texture > 0)] > 0.02).float().mean() > 0.9
     paper = PatchReprojectionMask(K, THRESHOLD)(*ctx, z_near, z_true)

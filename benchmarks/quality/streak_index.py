@@ -55,12 +55,13 @@ def streak_index(run: Path, photos: list[Path], strips: int = 0) -> dict[str, fl
         if photo is None:
             raise SystemExit(f"{photo_path}: not an image")
         reference = axis_ratio(photo)
-        depth.append(axis_ratio(np.load(path)) / reference)
+        depth_map = np.load(path)
+        depth.append(axis_ratio(depth_map) / reference)
         rgb = cv2.imread(str(run / "test" / "rgb" / f"{path.stem}.png"))
         render.append(axis_ratio(rgb) / reference)
         if strips:
             photo_strips = strip_ratios(photo, strips)
-            depth_strips.append(strip_ratios(np.load(path), strips) / photo_strips)
+            depth_strips.append(strip_ratios(depth_map, strips) / photo_strips)
             render_strips.append(strip_ratios(rgb, strips) / photo_strips)
     if not depth:
         raise SystemExit(f"{run}: no test/depth/*.npy (run `simplenerf test` on it first)")

@@ -306,14 +306,6 @@ class PatchReprojectionMask(ReliabilityMask):
         self.require_in_front, self.require_both_valid = require_in_front, require_both_valid
         self.min_texture = min_texture
 
-    def errors(
-        self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Reprojection errors of both depths, [R] each (inf where invalid), sharing one gather of the source patch."""
-        errors = ReprojectionErrors(views, rays)
-        return (errors("main", z_main, self.patch_size, self.require_in_front),
-                errors("other", z_other, self.patch_size, self.require_in_front))
-
     def __call__(self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor) -> torch.Tensor:
         return self.judge(ReprojectionErrors(views, rays), "main", z_main, "other", z_other)
 

@@ -7,7 +7,9 @@ r"""A trained run's depth error at held-out SfM points: the depth score of a rea
 
 The CLI's options (`simplenerf fit`'s) are overrides of the config; `--config` may be the run's own
 `<run>/config.yaml`. Prints one JSON line: the fine depth's error, and under "depths" that of every depth the model
-renders (fine, coarse and each augmentation's); with `--out FILE` also writes it there (`<run>/heldout_depth.json` is
+renders (fine, coarse and each augmentation's), and under "strips" where the fine depth's error is: per vertical strip
+of the frame (`--strips N`, default 4), the keypoints' count, mean error and the share of it from surfaces rendered
+behind the SfM depth; with `--out FILE` also writes it there (`<run>/heldout_depth.json` is
 where `simplenerf results` looks for it).
 """
 
@@ -30,6 +32,8 @@ def build_parser() -> CommandParser:
     parser.add_argument("--ckpt_path", required=True, old=("--ckpt",), help="checkpoint of the trained model")
     parser.add_argument("--cache", default="data/cache/sparse_depth", help="where the SfM reference is cached")
     parser.add_argument("--out", help="also write the JSON result to this file")
+    parser.add_argument("--strips", type=int, default=4,
+                        help="vertical strips of the frame for the error's breakdown under \"strips\" (default 4)")
     return parser
 
 
@@ -41,7 +45,7 @@ def main(argv: Sequence[str]) -> None:
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt_path)
     dm, model = cli.datamodule, cli.model
     observations = heldout_observations(dm.scene, args.cache)
-    result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk)
+    result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk, args.strips)
     line = json.dumps({"ckpt": args.ckpt_path, "overrides": overrides, **result})
     print(line)
     if args.out:

@@ -42,19 +42,30 @@ def heldout_observations(scene: Scene, cache_dir: str) -> dict[int, SparseDepth]
 
 @torch.no_grad()
 def heldout_depth_error(
-    model: SimpleNeRF, scene: Scene, observations: dict[int, SparseDepth], near: float, chunk: int = 8192
+    model: SimpleNeRF, scene: Scene, observations: dict[int, SparseDepth], near: float, chunk: int = 8192,
+    strips: int = 4,
 ) -> dict[str, object]:
     """Relative depth error |z - z_sfm| / z_sfm of the fine depth at the held-out keypoints, and under "depths" the
     same for every depth `model.render` gives: fine, coarse and each augmentation's (at the main model's samples of
     its stage, as in training; deterministic here).
 
+    Where the fine depth's error comes from, under "strips": the frame cut into `strips` vertical strips, left to right
+    (a keypoint at column u is in strip floor(u * strips / width)), and in each the keypoints' count, their mean error
+    and the share of their summed error from keypoints rendered behind the SfM depth (a near surface pushed back)
+    rather than in front (a far one pulled forward, as the streaks are; docs/results.md, 16 and 17).
+
     Returns:
         mean and median relative error of the fine depth over all observations, their count, the number of frames,
-        and "depths": {name: {"rel_error_mean", "rel_error_median"}}.
+        "depths": {name: {"rel_error_mean", "rel_error_median"}} and
+        "strips": {"points", "rel_error_mean", "behind_share"}, each a list left to right.
     """
+    if strips < 1:
+        raise ValueError(f"strips must be at least 1, got {strips}")
     device = next(model.parameters()).device
     errors: dict[str, list[np.ndarray]] = {}
+    strip_of, behind = [], []
     for frame, sd in observations.items():
+        strip_of.append(np.clip(np.floor(sd.pixels[:, 0] * strips / scene.views.width), 0, strips - 1).astype(int))
         uv = torch.from_numpy(sd.pixels).to(scene.views.c2w.dtype)
         rays = scene.views.rays(torch.full((len(sd),), frame), uv, near).to(device)
         render = model.nerf.render_rays_chunked(rays, chunk, model.augmentations)
@@ -62,9 +73,18 @@ def heldout_depth_error(
         for name, depth in depths.items():
             depth = depth.cpu().double().numpy()
             errors.setdefault(name, []).append(np.abs(depth - sd.depth) / sd.depth)
+            if name == "fine":
+                behind.append(depth > sd.depth)
     stats = {}
     for name, parts in errors.items():
         e = np.concatenate(parts)
         stats[name] = {"rel_error_mean": float(e.mean()), "rel_error_median": float(np.median(e))}
-    return {**stats["fine"], "points": int(np.concatenate(errors["fine"]).size), "frames": len(observations),
-            "depths": stats}
+    fine, strip_of, behind = np.concatenate(errors["fine"]), np.concatenate(strip_of), np.concatenate(behind)
+    per_strip: dict[str, list] = {"points": [], "rel_error_mean": [], "behind_share": []}
+    for i in range(strips):
+        e, b = fine[strip_of == i], behind[strip_of == i]
+        per_strip["points"].append(int(e.size))
+        per_strip["rel_error_mean"].append(float(e.mean()) if e.size else None)
+        per_strip["behind_share"].append(float(e[b].sum() / e.sum()) if e.sum() > 0 else None)
+    return {**stats["fine"], "points": int(fine.size), "frames": len(observations), "depths": stats,
+            "strips": per_strip}

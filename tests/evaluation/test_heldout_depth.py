@@ -61,3 +61,35 @@ def test_a_moved_scene_reuses_its_cached_heldout_reference(tmp_path, monkeypatch
     assert sorted(moved) == sorted(first)
     assert all(np.array_equal(moved[f].depth, first[f].depth) for f in first)
     assert len(list((tmp_path / "cache").glob("*.npz"))) == 1
+
+
+def test_strips_say_where_the_error_is_and_whether_surfaces_were_pushed_back(tmp_path):
+    """Keypoints at known columns of a 64-pixel-wide frame, with references set so that the fine depth is half the
+    reference (in front: error 0.5) or twice it (behind: error 1.0); each strip's count, mean and behind-share are
+    those numbers exactly, and an empty strip has no mean."""
+    dm = SyntheticDataModule(root=str(tmp_path / "data"), height=48, width=64, n_frames=8, n_views=2,
+                             sparse_rays_per_batch=0)
+    dm.setup("test")
+    scene = dm.scene
+    model = simplenerf_module().eval()
+    frame = next(i for i in range(8) if i not in scene.split.train and i not in scene.split.test)
+    pixels = np.array([[3.5, 4.5], [20.0, 30.0], [40.25, 10.0], [63.0, 47.0], [31.5, 23.5]], np.float32)
+    rays = scene.views.rays(torch.full((5,), frame), torch.from_numpy(pixels).to(scene.views.c2w.dtype), dm.near)
+    with torch.no_grad():
+        fine = model.render(rays, randomized=False).main.fine.depth.double()
+    behind = torch.tensor([False, True, False, True, False])
+    reference = torch.where(behind, fine / 2, fine * 2)
+    sd = SparseDepth(pixels, reference.float().numpy(), np.zeros(5, np.float32), np.arange(5))
+
+    quarters = heldout_depth_error(model, scene, {frame: sd}, dm.near, chunk=2)["strips"]
+    assert quarters["points"] == [1, 2, 1, 1]  # columns 3.5 | 20, 31.5 | 40.25 | 63 of 0-16-32-48-64
+    assert quarters["rel_error_mean"] == pytest.approx([0.5, 0.75, 0.5, 1.0], rel=1e-5)
+    assert quarters["behind_share"] == pytest.approx([0.0, 2 / 3, 0.0, 1.0], rel=1e-5)
+
+    eighths = heldout_depth_error(model, scene, {frame: sd}, dm.near, chunk=2, strips=8)["strips"]
+    assert eighths["points"] == [1, 0, 1, 1, 0, 1, 0, 1]
+    assert eighths["rel_error_mean"][1] is None and eighths["behind_share"][1] is None
+    assert eighths["rel_error_mean"][3] == pytest.approx(0.5, rel=1e-5)
+
+    with pytest.raises(ValueError, match="strips must be at least 1"):
+        heldout_depth_error(model, scene, {frame: sd}, dm.near, strips=0)

@@ -39,7 +39,10 @@ def build_parser() -> CommandParser:
 
 def main(argv: Sequence[str]) -> None:
     own, overrides = split_overrides(argv)
-    args = build_parser().parse_args(own)
+    parser = build_parser()
+    args = parser.parse_args(own)
+    if args.strips < 1:
+        parser.error(f"--strips must be at least 1, got {args.strips}")
     if args.out:
         lock_output(Path(args.out))  # e.g. <run>/heldout_depth.json: not while a fit or test writes that run
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt_path)

@@ -93,3 +93,12 @@ def test_strips_say_where_the_error_is_and_whether_surfaces_were_pushed_back(tmp
 
     with pytest.raises(ValueError, match="strips must be at least 1"):
         heldout_depth_error(model, scene, {frame: sd}, dm.near, strips=0)
+
+
+def test_the_command_refuses_fewer_than_one_strip_before_loading_anything(capsys):
+    from simplenerf.commands.heldout_depth import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--config", "missing.yaml", "--ckpt_path", "missing.ckpt", "--strips", "0"])
+    assert exit_info.value.code == 2
+    assert "--strips must be at least 1, got 0" in capsys.readouterr().err

@@ -10,15 +10,22 @@ from simplenerf.sfm.known_poses import SparseDepth
 from tests.method.test_module import simplenerf_module
 
 
-def test_every_rendered_depth_is_scored_at_the_keypoints(tmp_path):
+def _keypoints_of_a_heldout_frame(tmp_path):
+    """A synthetic scene 64 pixels wide, a module, one held-out frame and five keypoints at known columns of it (3.5,
+    20, 40.25, 63, 31.5), with their rays."""
     dm = SyntheticDataModule(root=str(tmp_path / "data"), height=48, width=64, n_frames=8, n_views=2,
                              sparse_rays_per_batch=0)
     dm.setup("test")
     scene = dm.scene
-    model = simplenerf_module().eval()
     frame = next(i for i in range(8) if i not in scene.split.train and i not in scene.split.test)
     pixels = np.array([[3.5, 4.5], [20.0, 30.0], [40.25, 10.0], [63.0, 47.0], [31.5, 23.5]], np.float32)
     rays = scene.views.rays(torch.full((5,), frame), torch.from_numpy(pixels).to(scene.views.c2w.dtype), dm.near)
+    return dm, simplenerf_module().eval(), frame, pixels, rays
+
+
+def test_every_rendered_depth_is_scored_at_the_keypoints(tmp_path):
+    dm, model, frame, pixels, rays = _keypoints_of_a_heldout_frame(tmp_path)
+    scene = dm.scene
     with torch.no_grad():
         renders = model.render(rays, randomized=False)
     fine = renders.main.fine.depth.double()
@@ -67,14 +74,8 @@ def test_strips_say_where_the_error_is_and_whether_surfaces_were_pushed_back(tmp
     """Keypoints at known columns of a 64-pixel-wide frame, with references set so that the fine depth is half the
     reference (in front: error 0.5) or twice it (behind: error 1.0); each strip's count, mean and behind-share are
     those numbers exactly, and an empty strip has no mean."""
-    dm = SyntheticDataModule(root=str(tmp_path / "data"), height=48, width=64, n_frames=8, n_views=2,
-                             sparse_rays_per_batch=0)
-    dm.setup("test")
+    dm, model, frame, pixels, rays = _keypoints_of_a_heldout_frame(tmp_path)
     scene = dm.scene
-    model = simplenerf_module().eval()
-    frame = next(i for i in range(8) if i not in scene.split.train and i not in scene.split.test)
-    pixels = np.array([[3.5, 4.5], [20.0, 30.0], [40.25, 10.0], [63.0, 47.0], [31.5, 23.5]], np.float32)
-    rays = scene.views.rays(torch.full((5,), frame), torch.from_numpy(pixels).to(scene.views.c2w.dtype), dm.near)
     with torch.no_grad():
         fine = model.render(rays, randomized=False).main.fine.depth.double()
     behind = torch.tensor([False, True, False, True, False])

@@ -328,6 +328,43 @@ def test_min_texture_judges_only_rays_whose_own_patch_is_textured(sharp_views):
         PatchReprojectionMask(min_texture=-0.1)
 
 
+def test_search_radius_finds_the_patch_of_views_that_register_only_to_two_pixels(sharp_views):
+    # The nearest view of view 0 shifted two columns to the right (a pose error of 2 px): the exact depth's patch now
+    # misses, and with search_radius 2 the shifted patch is among those compared, so its error is at most the
+    # registered views' error, ray by ray.
+    batch = pixel_grid(sharp_views, stride=2)
+    batch = {k: v[batch["view"] == 0] for k, v in batch.items()}
+    b = int(nearest_views(sharp_views.c2w)[0])
+    images = sharp_views.images.clone()
+    images[b] = torch.roll(images[b], shifts=2, dims=1)  # column c now shows what column c - 2 showed
+    shifted = Views(images, sharp_views.intrinsics, sharp_views.c2w, sharp_views.names, sharp_views.depths)
+    z = batch["depth"]
+    registered = ReprojectionErrors(*context(sharp_views, batch))("true", z, K)
+    errors = ReprojectionErrors(*context(shifted, batch))
+    e0, e2 = errors("true", z, K), errors("true", z, K, search_radius=2)
+    assert errors("true", z, K, search_radius=2) is e2 and e2 is not e0  # one computation per radius
+    uv_b, _ = project(batch["origins"] + z[:, None] * batch["directions"], sharp_views.intrinsics[b],
+                      sharp_views.c2w[b])
+    inner = torch.isfinite(registered) & (torch.round(uv_b[:, 0]) < sharp_views.width - 1 - K // 2 - 2)
+    assert inner.sum() > 200
+    assert torch.equal(torch.isfinite(e2), torch.isfinite(registered))  # validity is the reprojected pixel's
+    assert (e2[inner] <= registered[inner]).all()
+    seen = inner & visible_in_nearest(sharp_views, batch)
+    assert (e0[seen] < THRESHOLD).float().mean() < 0.5 and (e2[seen] < THRESHOLD).float().mean() > 0.9  # 0.13, 0.94
+    # The mask trusts the exact depth over a wrong one again where the one-patch comparison could not tell them
+    # apart, wherever the wrong depth reprojects beyond the window (2 px) and a patch (5 px) from the shifted one.
+    wrong = 0.3 * z
+    uv_wrong, _ = project(batch["origins"] + wrong[:, None] * batch["directions"], sharp_views.intrinsics[b],
+                          sharp_views.c2w[b])
+    apart = seen & ((uv_wrong - uv_b).abs().max(dim=-1).values > 2 + 2 + K)
+    mask0, mask2, registered_mask = (PatchReprojectionMask(K, THRESHOLD, search_radius=r)(*context(v, batch), wrong, z)
+                                     for v, r in ((shifted, 0), (shifted, 2), (sharp_views, 0)))
+    trusted = [(m[apart] == 1).float().mean() for m in (mask0, mask2, registered_mask)]  # 0.21, 0.92, 0.90
+    assert apart.sum() > 1000 and trusted[0] < 0.4 and trusted[1] > 0.85 and trusted[1] > trusted[2] - 0.02
+    with pytest.raises(ValueError, match="search_radius"):
+        PatchReprojectionMask(search_radius=-1)
+
+
 def test_patch_mask_is_zero_near_the_border(train_views):
     # Rays of view 0 one pixel closer to the border than k // 2, with the exact depth for "other" and a wrong one
     # for "main": in the interior this would be +1.

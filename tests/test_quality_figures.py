@@ -1,15 +1,20 @@
 """The figures of benchmarks/quality/ that score a run's maps and masks: texture printed into depth
 (benchmarks.quality.texture_in_depth) on a hand-made plane with one edge, and streaks along the image axes
 (benchmarks.quality.streak_index) on hand-made maps, a reliability mask against SfM depth
-(benchmarks.quality.mask_accuracy) on hand-made depths."""
+(benchmarks.quality.mask_accuracy) on hand-made depths, and the views' registration (benchmarks.quality.registration)
+on the synthetic scene's exact depth."""
 
 import cv2
 import numpy as np
 import pytest
+import torch
 
 from benchmarks.quality.mask_accuracy import pair_scores
+from benchmarks.quality.registration import registration
 from benchmarks.quality.streak_index import axis_ratio, streak_index, strip_ratios
 from benchmarks.quality.texture_in_depth import flat_pixels, score
+from simplenerf.data.llff import load_llff_scene, subset
+from simplenerf.sfm.known_poses import SparseDepth
 
 
 def test_flat_pixels_are_those_whose_neighbourhood_is_on_one_plane():
@@ -204,3 +209,28 @@ def test_mask_precision_counts_where_the_chosen_depth_is_the_closer_one():
     assert apart["share"] == pytest.approx(4 / 6) and apart["rays"] == 4
     assert apart["precision_plus"] == pytest.approx(1 / 2) and apart["precision_minus"] == pytest.approx(1 / 2)
     assert np.isnan(pair_scores(z_main[:1], z_other[:1], z_sfm[:1], np.zeros(1, int))["precision_plus"])
+
+
+def test_registration_is_the_distance_from_the_projected_keypoint_to_the_observed_one(synthetic_scene):
+    scene = load_llff_scene(synthetic_scene, factor=1, n_views=2)
+    views = subset(scene.views, scene.split.train)
+    uv = torch.tensor([[20.0, 15.0], [30.5, 22.0], [40.0, 30.25]], dtype=views.c2w.dtype)
+    depth = views.depths[0, uv[:, 1].long(), uv[:, 0].long()]
+    rays = views.rays(torch.zeros(3, dtype=torch.long), uv, near=1.0)
+    uv_b, z_b = views.project(rays.origins + depth[:, None] * rays.directions, torch.ones(3, dtype=torch.long))
+
+    def seen(pixels, z, ids):
+        return SparseDepth(np.asarray(pixels, np.float32), np.asarray(z, np.float32), np.zeros(len(ids), np.float32),
+                           np.asarray(ids, np.int64))
+
+    a = seen(uv.numpy(), depth.numpy(), [7, 8, 9])
+    # view 1 observed points 8 and 9 where they project, 3 px right and 4 px down of it; point 5 only it saw
+    b = seen(np.concatenate([uv_b[1:].numpy() + [3.0, 4.0], [[1.0, 1.0]]]), np.concatenate([z_b[1:].numpy(), [2.0]]),
+             [8, 9, 5])
+    assert views.nearest.tolist() == [1, 0]
+    distances = registration(views, [a, b], near=1.0)
+    # each common point from both sides: a -> b is 5 px exactly; b -> a (b's shifted keypoint at b's depth) is not 0
+    assert len(distances) == 4 and distances[:2] == pytest.approx([5.0, 5.0], abs=1e-3)
+    assert (distances[2:] > 1.0).all()
+    shifted = seen(uv_b[1:].numpy(), z_b[1:].numpy(), [8, 9])
+    assert registration(views, [a, shifted], near=1.0) == pytest.approx(np.zeros(4), abs=1e-3)

@@ -34,8 +34,10 @@ import torch
 from simplenerf.commands import split_overrides
 from simplenerf.data.batches import RayBatch
 from simplenerf.evaluation.heldout_depth import reference_observations
+from simplenerf.geometry.views import Views
 from simplenerf.method.reliability import ReprojectionErrors
 from simplenerf.run.cli import load_for_tool
+from simplenerf.sfm.known_poses import SparseDepth
 
 
 def _mean(values: np.ndarray) -> float:
@@ -67,28 +69,34 @@ def pair_scores(z_main: np.ndarray, z_other: np.ndarray, z_sfm: np.ndarray, mask
     return scores
 
 
+def train_view_observations(scene, observations: dict[int, SparseDepth]) -> list[SparseDepth]:
+    """The reference observations (`reference_observations`) of each train view of `scene`, in the train views'
+    order; an empty one where SfM saw nothing in a view."""
+    empty = SparseDepth(np.zeros((0, 2), np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32),
+                        np.zeros(0, np.int64))
+    return [observations.get(frame, empty) for frame in scene.split.train]
+
+
+def keypoint_rays(views: Views, observations: list[SparseDepth], near: float) -> tuple[RayBatch, torch.Tensor]:
+    """The rays through the keypoints of `observations` (those of train view i at index i) and their SfM depths [R]."""
+    view = torch.cat([torch.full((len(sd),), i) for i, sd in enumerate(observations)])
+    uv = torch.from_numpy(np.concatenate([sd.pixels for sd in observations])).to(views.c2w.dtype)
+    depth = torch.from_numpy(np.concatenate([sd.depth for sd in observations]))
+    return RayBatch(views.rays(view, uv, near), torch.zeros(len(view), 3, dtype=uv.dtype), view, uv), depth
+
+
 @torch.no_grad()
 def mask_accuracy(model, scene, near: float, cache: str, chunk: int = 4096) -> dict[str, dict[str, float]]:
     """`pair_scores` of every masked depth pair of `model` (each augmentation with its main depth, and L_cfc) at the
     reference SfM keypoints of the train views of `scene`."""
-    train = scene.split.train
-    views = scene.views.subset(train)
-    observations = reference_observations(scene, cache)
-    view, uv, z_sfm = [], [], []
-    for local, frame in enumerate(train):
-        sd = observations.get(frame)
-        if sd is not None:
-            view.append(torch.full((len(sd),), local))
-            uv.append(torch.from_numpy(sd.pixels).to(views.c2w.dtype))
-            z_sfm.append(sd.depth)
-    view, uv = torch.cat(view), torch.cat(uv)
-    rays = RayBatch(views.rays(view, uv, near), torch.zeros(len(view), 3, dtype=uv.dtype), view, uv)
+    views = scene.views.subset(scene.split.train)
+    rays, z_sfm = keypoint_rays(views, train_view_observations(scene, reference_observations(scene, cache)), near)
     render = model.nerf.render_rays_chunked(rays.rays, chunk, model.augmentations)
     depths = {"fine": render.depth, "coarse": render.coarse_depth, **render.augmented_depth}
     pairs = [(aug.name, aug.mask, aug.stage, aug.name) for aug in model.augmentations]
     if model.objective.coarse_fine_mask is not None:
         pairs.append(("cfc", model.objective.coarse_fine_mask, "coarse", "fine"))
-    z_sfm = np.concatenate(z_sfm)
+    z_sfm = z_sfm.numpy()
     errors = ReprojectionErrors(views, rays)  # as in a training step: each depth's patch error computed once
     result = {}
     for name, mask, main, other in pairs:

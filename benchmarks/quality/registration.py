@@ -33,6 +33,7 @@ import sys
 import numpy as np
 import torch
 
+from benchmarks.quality.mask_accuracy import keypoint_rays, train_view_observations
 from simplenerf.commands import split_overrides
 from simplenerf.data.batches import RayBatch
 from simplenerf.data.scene import Scene
@@ -83,21 +84,11 @@ def region_points(scene: Scene, observations: dict[int, SparseDepth], columns: t
                   max_depth: float) -> np.ndarray:
     """Ids of the points that a held-out frame (neither train nor test) sees in `columns` (fractions of its width,
     [x0, x1)) nearer than `max_depth`."""
-    held_out = [f for f in observations if f not in set(scene.split.train)]
+    train = set(scene.split.train)
     ids = [sd.point_ids[(sd.pixels[:, 0] >= columns[0] * scene.views.width)
                         & (sd.pixels[:, 0] < columns[1] * scene.views.width) & (sd.depth < max_depth)]
-           for sd in (observations[f] for f in held_out)]
+           for frame, sd in observations.items() if frame not in train]
     return np.unique(np.concatenate(ids)) if ids else np.zeros(0, dtype=np.int64)
-
-
-def train_keypoints(views: Views, observations: list[SparseDepth], near: float,
-                    keep: list[np.ndarray]) -> tuple[RayBatch, torch.Tensor]:
-    """The rays of the train keypoints kept by `keep` (a bool array per view) and their SfM depths [R]."""
-    view = torch.cat([torch.full((int(k.sum()),), i) for i, k in enumerate(keep)])
-    pairs = list(zip(observations, keep, strict=True))
-    uv = torch.from_numpy(np.concatenate([sd.pixels[k] for sd, k in pairs])).to(views.c2w.dtype)
-    depth = torch.from_numpy(np.concatenate([sd.depth[k] for sd, k in pairs])).to(uv.dtype)
-    return RayBatch(views.rays(view, uv, near), torch.zeros(len(view), 3, dtype=uv.dtype), view, uv), depth
 
 
 def _summary(distances: np.ndarray) -> dict[str, float]:
@@ -122,9 +113,7 @@ def main() -> None:
     data = load_for_tool([args.config], overrides, stage="fit").datamodule
     scene, views = data.scene, data.train_views
     observations = reference_observations(scene, args.cache)
-    empty = SparseDepth(np.zeros((0, 2), np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32),
-                        np.zeros(0, np.int64))
-    per_view = [observations.get(frame, empty) for frame in scene.split.train]
+    per_view = train_view_observations(scene, observations)
     groups = {"all": [np.ones(len(sd), bool) for sd in per_view]}
     if args.region:
         x0, x1 = (float(x) for x in args.region.split(","))
@@ -135,7 +124,8 @@ def main() -> None:
     for name, keep in groups.items():
         kept = [SparseDepth(sd.pixels[k], sd.depth[k], sd.reprojection_error[k], sd.point_ids[k])
                 for sd, k in zip(per_view, keep, strict=True)]
-        rays, depth = train_keypoints(views, per_view, data.near, keep)
+        rays, depth = keypoint_rays(views, kept, data.near)
+        depth = depth.to(rays.uv.dtype)
         result[name] = {"registration": _summary(registration(views, kept, data.near)),
                         "patch_test": {str(s): patch_test(views, rays, depth, args.patch_size, args.threshold, s)
                                        for s in radii}}

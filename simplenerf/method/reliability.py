@@ -109,7 +109,8 @@ def _reprojection_error(
         low = torch.tensor([[patch_size // 2] * 2], device=centre.device)
         high = torch.tensor([[views.width - 1 - patch_size // 2, views.height - 1 - patch_size // 2]],
                             device=centre.device)
-        for shift in _patch_offsets(2 * search_radius + 1, centre.device):
+        shifts = _patch_offsets(2 * search_radius + 1, centre.device)
+        for shift in torch.cat([shifts[: len(shifts) // 2], shifts[len(shifts) // 2 + 1 :]]):  # the centre is done
             shifted = torch.minimum(torch.maximum(centre + shift, low), high)
             error = torch.minimum(error, _patch_rmse(source, _gather_patches(views.images, target_view, shifted,
                                                                              patch_size)))

@@ -32,12 +32,9 @@ import numpy as np
 import torch
 
 from simplenerf.commands import split_overrides
-from simplenerf.data.batches import RayBatch
-from simplenerf.evaluation.heldout_depth import reference_observations
-from simplenerf.geometry.views import Views
+from simplenerf.evaluation.heldout_depth import keypoint_rays, reference_observations, train_view_observations
 from simplenerf.method.reliability import ReprojectionErrors
 from simplenerf.run.cli import load_for_tool
-from simplenerf.sfm.known_poses import SparseDepth
 
 
 def _mean(values: np.ndarray) -> float:
@@ -67,22 +64,6 @@ def pair_scores(z_main: np.ndarray, z_other: np.ndarray, z_sfm: np.ndarray, mask
         scores["disagree"] = {"share": float(apart.mean()),
                               **pair_scores(z_main[apart], z_other[apart], z_sfm[apart], mask[apart], disagree=0)}
     return scores
-
-
-def train_view_observations(scene, observations: dict[int, SparseDepth]) -> list[SparseDepth]:
-    """The reference observations (`reference_observations`) of each train view of `scene`, in the train views'
-    order; an empty one where SfM saw nothing in a view."""
-    empty = SparseDepth(np.zeros((0, 2), np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32),
-                        np.zeros(0, np.int64))
-    return [observations.get(frame, empty) for frame in scene.split.train]
-
-
-def keypoint_rays(views: Views, observations: list[SparseDepth], near: float) -> tuple[RayBatch, torch.Tensor]:
-    """The rays through the keypoints of `observations` (those of train view i at index i) and their SfM depths [R]."""
-    view = torch.cat([torch.full((len(sd),), i) for i, sd in enumerate(observations)])
-    uv = torch.from_numpy(np.concatenate([sd.pixels for sd in observations])).to(views.c2w.dtype)
-    depth = torch.from_numpy(np.concatenate([sd.depth for sd in observations]))
-    return RayBatch(views.rays(view, uv, near), torch.zeros(len(view), 3, dtype=uv.dtype), view, uv), depth
 
 
 @torch.no_grad()

@@ -33,11 +33,10 @@ import sys
 import numpy as np
 import torch
 
-from benchmarks.quality.mask_accuracy import keypoint_rays, train_view_observations
 from simplenerf.commands import split_overrides
 from simplenerf.data.batches import RayBatch
 from simplenerf.data.scene import Scene
-from simplenerf.evaluation.heldout_depth import reference_observations
+from simplenerf.evaluation.heldout_depth import keypoint_rays, reference_observations, train_view_observations
 from simplenerf.geometry.views import Views
 from simplenerf.method.reliability import ReprojectionErrors, ternary_mask
 from simplenerf.run.cli import load_for_tool
@@ -125,7 +124,6 @@ def main() -> None:
         kept = [SparseDepth(sd.pixels[k], sd.depth[k], sd.reprojection_error[k], sd.point_ids[k])
                 for sd, k in zip(per_view, keep, strict=True)]
         rays, depth = keypoint_rays(views, kept, data.near)
-        depth = depth.to(rays.uv.dtype)
         result[name] = {"registration": _summary(registration(views, kept, data.near)),
                         "patch_test": {str(s): patch_test(views, rays, depth, args.patch_size, args.threshold, s)
                                        for s in radii}}

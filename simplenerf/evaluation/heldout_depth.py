@@ -12,11 +12,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from simplenerf.data.batches import RayBatch
 from simplenerf.data.scene import Scene
 from simplenerf.sfm.known_poses import SparseDepth
 from simplenerf.sfm.sparse_depth import load_or_compute_sparse_depth
 
 if TYPE_CHECKING:
+    from simplenerf.geometry.views import Views
     from simplenerf.method.module import SimpleNeRF
 
 
@@ -38,6 +40,23 @@ def heldout_observations(scene: Scene, cache_dir: str) -> dict[int, SparseDepth]
     train = set(scene.split.train)
     return {frame: sd for frame, sd in reference_observations(scene, cache_dir).items()
             if frame not in train}
+
+
+def train_view_observations(scene: Scene, observations: dict[int, SparseDepth]) -> list[SparseDepth]:
+    """The reference observations (`reference_observations`) of each train view of `scene`, in the train views'
+    order; an empty one where SfM saw nothing in a view."""
+    empty = SparseDepth(np.zeros((0, 2), np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32),
+                        np.zeros(0, np.int64))
+    return [observations.get(frame, empty) for frame in scene.split.train]
+
+
+def keypoint_rays(views: Views, observations: list[SparseDepth], near: float) -> tuple[RayBatch, torch.Tensor]:
+    """The rays through the keypoints of `observations` (those of view i of `views` at index i) and their SfM depths
+    [R], in the views' dtype."""
+    view = torch.cat([torch.full((len(sd),), i) for i, sd in enumerate(observations)])
+    uv = torch.from_numpy(np.concatenate([sd.pixels for sd in observations])).to(views.c2w.dtype)
+    depth = torch.from_numpy(np.concatenate([sd.depth for sd in observations])).to(uv.dtype)
+    return RayBatch(views.rays(view, uv, near), torch.zeros(len(view), 3, dtype=uv.dtype), view, uv), depth
 
 
 @torch.no_grad()

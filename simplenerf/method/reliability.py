@@ -110,7 +110,7 @@ def _reprojection_error(
         high = torch.tensor([[views.width - 1 - patch_size // 2, views.height - 1 - patch_size // 2]],
                             device=centre.device)
         shifts = _patch_offsets(2 * search_radius + 1, centre.device)
-        for shift in torch.cat([shifts[: len(shifts) // 2], shifts[len(shifts) // 2 + 1 :]]):  # the centre is done
+        for shift in shifts[(shifts != 0).any(dim=1)]:  # the centre patch's error is `error` already
             shifted = torch.minimum(torch.maximum(centre + shift, low), high)
             error = torch.minimum(error, _patch_rmse(source, _gather_patches(views.images, target_view, shifted,
                                                                              patch_size)))

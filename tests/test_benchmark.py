@@ -5,6 +5,7 @@ CLI."""
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 
 import pytest
@@ -20,6 +21,7 @@ from benchmarks.speed.summarize import side_by_side_table
 from benchmarks.speed.training_step import field_evaluations_per_ray, linear_macs, matmul_flop_per_ray
 from simplenerf.commands.benchmark import main as benchmark_main
 from simplenerf.commands.benchmark import training_args
+from simplenerf.errors import CheckpointError
 from simplenerf.run import hardware
 from tests.run.test_cli import run_args
 
@@ -162,3 +164,19 @@ def test_matmul_time_separates_the_matrix_products():
     assert matmul_time(events, 450 * 10**9) == {"matmul_s": 3.0, "matmul_gflop": 450.0, "matmul_gflop_per_s": 150.0,
                                                 "other_ops_s": 0.75}
     assert matmul_time([("aten::relu", 0.5)], 0)["matmul_gflop_per_s"] == 0.0
+
+
+def test_weights_load_a_checkpoint_of_the_config_and_name_one_that_does_not_fit(tmp_path):
+    model = training_args(_tiny(tmp_path), "", {})[2].model
+    trained = {name: torch.full_like(value, 0.25) if value.is_floating_point() else value
+               for name, value in model.state_dict().items()}
+    torch.save({"state_dict": trained, "global_step": 7}, tmp_path / "late.ckpt")
+    loaded = training_args(["--weights", str(tmp_path / "late.ckpt"), *_tiny(tmp_path)], "", {})[2].model
+    for name, value in loaded.state_dict().items():
+        assert torch.equal(value, trained[name]), name  # the checkpoint's values, not a fresh initialisation
+
+    name = next(n for n, v in trained.items() if v.is_floating_point() and v.dim() == 2)
+    torch.save({"state_dict": {**trained, name: trained[name][:1]}}, tmp_path / "other.ckpt")
+    other = re.escape(f"checkpoint {tmp_path / 'other.ckpt'} does not fit the model: {name} is ")
+    with pytest.raises(CheckpointError, match=other):
+        training_args(["--weights", str(tmp_path / "other.ckpt"), *_tiny(tmp_path)], "", {})

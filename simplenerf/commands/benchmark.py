@@ -8,7 +8,8 @@ The CLI's options (`simplenerf fit`'s) are overrides of the config. `--tf32` all
 (CUDA). The JSON holds s/it (median, min, max, all), rays/s, field evaluations/s, peak RSS and peak CUDA
 memory, CPU user/system time and page faults per iteration, the losses computed, and the machine (CPU model and
 capability: AVX2, AVX-512, AVX-512 BF16 or AMX; the GPU model). Before the first step it names the CPU and warns when
-the precision has no fast kernels on it (`simplenerf.run.hardware`). The config's warm-up schedule
+the precision has no fast kernels on it (`simplenerf.run.hardware`). `--weights CKPT` times
+from a checkpoint's weights (a step late in a fit) instead of the initialisation. The config's warm-up schedule
 is not applied: every loss is computed at its configured weight (the cost of a step after the warm-up). Run
 `simplenerf sparse-depth` with the same arguments first, so that SfM is not in the measured process. One measurement
 per process: peak memory is per process. More measurements (rendering, a profile, the release side by side):
@@ -105,6 +106,9 @@ def training_parser(doc: str | None, extra: dict[str, tuple[int, str]], prog: st
     for name, (default, text) in {"warmup": (2, "untimed iterations first"), **extra}.items():
         parser.add_argument(f"--{name}", type=int, default=default, help=text)
     parser.add_argument("--rays", type=int, help="random rays per iteration (overrides the config's)")
+    parser.add_argument("--weights", default=None,
+                        help="a checkpoint of the config's model to time from: the cost of a step late in a fit, "
+                             "whose fields no longer have their initial values (default: the initialisation)")
     return parser
 
 
@@ -121,8 +125,20 @@ def training_args(argv: Sequence[str], doc: str | None, extra: dict[str, tuple[i
         overrides = [*overrides, "--data.init_args.rays_per_batch", str(args.rays)]
     with stdout_to_stderr():
         cli = build(args, overrides)
+        if args.weights:
+            load_weights(cli.model, Path(args.weights))
         warn_zero_weights(cli.model)
     return args, overrides, cli
+
+
+def load_weights(model: nn.Module, path: Path) -> None:
+    """The model weights of the checkpoint at `path` loaded into `model` (not its optimiser state: a timed step
+    starts Adam afresh); CheckpointError naming the file when it is unreadable or was trained with another config."""
+    from simplenerf.run.checks import check_checkpoint_fits, read_checkpoint
+
+    checkpoint = read_checkpoint(path)
+    check_checkpoint_fits(path, checkpoint, model)
+    model.load_state_dict(checkpoint["state_dict"])
 
 
 def main(argv: Sequence[str]) -> dict:

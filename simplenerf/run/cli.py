@@ -333,11 +333,13 @@ def make_cli(args: list[str] | None = None, run: bool = True, cli_class: type[Li
     that reads a run).
 
     Every entry point comes through here, so this is also where SIMPLENERF_MALLOC=reuse takes effect (keep freed
-    host memory for reuse: fewer page faults, more memory; see `simplenerf.run.memory`).
+    host memory for reuse: fewer page faults, more memory; see `simplenerf.run.memory`), and where subnormal floats
+    start to be flushed to zero (`hardware.flush_denormals`; SIMPLENERF_DENORMALS=keep: not).
     A fit's saved `<run>/config.yaml` can be passed back as --config: the fit's own arguments in it (`overwrite`;
     for a tool also `ckpt_path` and `weights_only`) are dropped where they do not apply.
     """
     reuse_freed_memory()
+    hardware.flush_denormals()
     given = list(sys.argv[1:] if args is None else args)
     check_config_files(given)
     if not run:  # a tool: none of a subcommand's arguments apply

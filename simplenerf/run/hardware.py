@@ -17,6 +17,12 @@ the bf16/fp16 extensions torch does not report, the flags of /proc/cpuinfo (Linu
 (no /proc/cpuinfo, another architecture), bf16/fp16 support is unknown and nothing is claimed. The configs keep the
 release's fp32 (`32-true`, Lightning's default where a config does not set it): it is fast on every CPU, and a run's
 numbers do not depend on the machine it was trained on.
+
+Every entry point also flushes subnormal floats to zero on the CPU (`flush_denormals`): a grid fit's densities run
+to exp(-90) and below in empty space, ~1% of the values its matrix products and grid-sample backward read are then
+subnormal (below 1.2e-38 in fp32), and x86 CPUs take a microcode assist of 100+ cycles on each. Measured on fern at
+images_4 (docs/benchmarks.md, "Subnormal floats"): the late steps of `simplerf_images4.yaml` about 20% faster, the
+first steps (before the densities get there) unchanged. SIMPLENERF_DENORMALS=keep leaves the CPU's default.
 """
 
 from __future__ import annotations
@@ -29,6 +35,16 @@ from typing import TextIO
 
 import torch
 from lightning.pytorch.utilities import rank_zero_only
+
+def flush_denormals() -> bool:
+    """Subnormal floats read and written as zero on the CPU from now on, in this thread and the threads it starts
+    (`torch.set_flush_denormal`: x86 DAZ and FTZ, which need SSE3; ARM's FZ). Values below 1.2e-38 in fp32 count for
+    nothing in a loss or a gradient but cost a microcode assist each (see the module docstring). Not with
+    SIMPLENERF_DENORMALS=keep (to measure the difference). Returns whether it applied."""
+    if os.environ.get("SIMPLENERF_DENORMALS", "flush") == "keep":
+        return False
+    return torch.set_flush_denormal(True)
+
 
 # x86 flags of /proc/cpuinfo (Linux's names) that give fast reduced-precision matrix products.
 BF16_FLAGS = ("avx512_bf16", "amx_bf16")

@@ -132,3 +132,26 @@ def test_a_cpu_fit_of_the_papers_mlp_at_a_gpus_budget_points_to_the_grid():
     assert hardware.cpu_budget_hint(cpu, False, 100000) is None  # the grid on a CPU
     assert hardware.cpu_budget_hint(cpu, True, hardware.GPU_BUDGET_STEPS) is None  # a short MLP fit
     assert hardware.cpu_budget_hint(cpu, True, None) is None  # no step budget (max_epochs)
+
+
+def test_subnormal_floats_are_flushed_unless_kept(monkeypatch):
+    # 2**-126 / 2**9, below fp32's smallest normal, made from its bits (a conversion might already be flushed)
+    subnormal = torch.tensor([1 << 14], dtype=torch.int32).view(torch.float32)
+    try:
+        monkeypatch.setenv("SIMPLENERF_DENORMALS", "keep")
+        torch.set_flush_denormal(False)
+        assert hardware.flush_denormals() is False
+        assert (subnormal * 1.0).item() > 0  # kept: the CPU's default
+        monkeypatch.delenv("SIMPLENERF_DENORMALS")
+        assert hardware.flush_denormals() is True  # x86 with SSE3 and ARM: every machine this project runs on
+        assert (subnormal * 1.0).item() == 0.0
+        assert (torch.tensor([1e-37]) * 1.0).item() > 0  # a normal float stays
+    finally:
+        torch.set_flush_denormal(False)
+
+
+def test_every_entry_point_flushes_subnormal_floats(monkeypatch, tmp_path):
+    called = []
+    monkeypatch.setattr(hardware, "flush_denormals", lambda: called.append(True) or True)
+    make_cli([*run_args(tmp_path), "--trainer.logger", "false"], run=False)
+    assert called == [True]

@@ -115,6 +115,29 @@ def test_the_fits_overrides_are_the_clis(tmp_path):
     assert config["data"]["init_args"]["rays_per_batch"] == 2048  # the paper's step, unchanged
 
 
+def test_without_wandb_the_fit_runs_with_no_logger(tmp_path):
+    """A Python that cannot import wandb (a GPU machine given only the wheels it needs): the fit gets
+    `--trainer.logger false`, said on stdout, and the CLI takes it."""
+    blocker = tmp_path / "blocker"
+    blocker.mkdir()
+    (blocker / "wandb.py").write_text('raise ImportError("no wandb on this machine")\n')
+    proc = gpu_sh("--dry-run", str(tmp_path / "out"), PYTHONPATH=str(blocker))
+    assert proc.returncode == 0, proc.stderr
+    assert f"# fit: {sys.executable} cannot import wandb: the fit runs with --trainer.logger false (no W&B run)" \
+        in proc.stdout.splitlines()
+    fit = dry_run_commands(proc.stdout)["fit"][1]
+    assert fit[-2:] == ["--trainer.logger", "false"]
+    printed = subprocess.run([*fit, "--print_config"], capture_output=True, text=True, cwd=REPO, timeout=300,
+                             env={**os.environ, "PYTHONPATH": f"{REPO}{os.pathsep}{blocker}"})
+    assert printed.returncode == 0, printed.stderr
+    import yaml
+
+    assert yaml.safe_load(printed.stdout)["trainer"]["logger"] is False
+    # with wandb importable: W&B, as configured
+    fit = dry_run_commands(gpu_sh("--dry-run", str(tmp_path / "out")).stdout)["fit"][1]
+    assert "--trainer.logger" not in fit
+
+
 def test_report_records_each_step_and_summarises(tmp_path):
     out = tmp_path / "gpu"
     machine = tmp_path / "machine.json"

@@ -172,6 +172,20 @@ def test_importing_the_module_loads_neither_pycolmap_nor_lpips():
     assert out.strip() == "[]"
 
 
+# What a GPU machine may lack (benchmarks/speed/gpu.sh carries the project's other dependencies as wheels): SfM and
+# video writing import them when they run, not when the CLI or a verb's module is imported.
+OPTIONAL_AT_IMPORT = ("pycolmap", "av", "wandb")
+
+
+def test_the_cli_and_the_gpu_scripts_verbs_import_without_pycolmap_av_or_wandb():
+    blocked = "; ".join(f"sys.modules[{name!r}] = None" for name in OPTIONAL_AT_IMPORT)
+    modules = ("simplenerf.run.cli", "simplenerf.commands.sparse_depth", "simplenerf.commands.benchmark",
+               "simplenerf.data.llff", "simplenerf.sfm.sparse_depth", "simplenerf.viz.video")
+    code = f"import importlib, sys; {blocked}\nfor m in {modules!r}: importlib.import_module(m)\nprint('ok')"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=PACKAGE.parent)
+    assert result.returncode == 0 and result.stdout == "ok\n", result.stderr
+
+
 def test_no_module_is_over_400_lines():
     sizes = {str(p.relative_to(PACKAGE)): len(p.read_text().splitlines()) for p in PACKAGE.rglob("*.py")}
     assert {name: n for name, n in sizes.items() if n > MAX_LINES} == {}

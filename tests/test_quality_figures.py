@@ -14,7 +14,7 @@ from benchmarks.quality.registration import registration
 from benchmarks.quality.streak_index import axis_ratio, streak_index, strip_ratios
 from benchmarks.quality.texture_in_depth import flat_pixels, score
 from simplenerf.data.llff import load_llff_scene, subset
-from simplenerf.sfm.known_poses import SparseDepth
+from simplenerf.sfm.sparse_depth import SparseDepth
 
 
 def test_flat_pixels_are_those_whose_neighbourhood_is_on_one_plane():

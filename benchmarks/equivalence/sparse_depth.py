@@ -93,7 +93,7 @@ def our_sparse_depth(per_view: list[dict], intrinsics: torch.Tensor, c2w: torch.
     scale (float64; triangulating instead would amplify float32 camera round-off by depth / baseline, ~1e-4 on the
     RealEstate-10K clip). Returns `SparseDepth` per view and our projections uv of the points [per view]."""
     from simplenerf.geometry.rays import pixel_rays, project
-    from simplenerf.sfm.known_poses import SparseDepth
+    from simplenerf.sfm.sparse_depth import SparseDepth
 
     k64, c64 = intrinsics.double(), c2w.double()
     out, projections = [], []

@@ -40,7 +40,7 @@ from simplenerf.evaluation.heldout_depth import keypoint_rays, reference_observa
 from simplenerf.geometry.views import Views
 from simplenerf.method.reliability import ReprojectionErrors, ternary_mask
 from simplenerf.run.cli import load_for_tool
-from simplenerf.sfm.known_poses import SparseDepth
+from simplenerf.sfm.sparse_depth import SparseDepth
 
 FARTHER = np.exp(np.linspace(np.log(1.3), np.log(8.0), 48))  # depth ratios a background would offer
 

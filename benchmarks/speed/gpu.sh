@@ -13,6 +13,7 @@
 #   4. a FIT_STEPS-step fit of configs/llff.yaml (default 500) [150 s], with these overrides so that it fits the time:
 #      --trainer.precision bf16-mixed, configs/overrides/budget/warmup_10.yaml (L_ap, L_av, L_cfc from step 10, not
 #      10000, so that the masked losses run), validation every FIT_STEPS / 2 steps, a checkpoint at the end, W&B offline
+#      (where PYTHON cannot import wandb: no logger, `--trainer.logger false`, said in the fit's row)
 #   5. `simplenerf test` of that fit (every test view, full frames, the ten metrics) [55 s]
 # A step that fails or hits its limit is recorded as such and the script goes on (a fit stopped by its limit still
 # writes last.ckpt, which the test then scores). It prints the GPU's model first and a summary last.
@@ -137,6 +138,14 @@ else
   echo "# dry run: would check for a CUDA device ($PYTHON: torch.cuda.is_available()), print the GPU's model, then run:"
 fi
 
+# W&B offline; a machine whose Python lacks wandb (a GPU machine given only the wheels it cannot do without) fits with
+# no logger rather than failing at the logger's start (checked here, after WHEELS are installed).
+fit_note=()
+if ! "$PYTHON" -c 'import wandb' > /dev/null 2>&1; then
+  fit+=(--trainer.logger false)
+  fit_note=(--note "no logger: $PYTHON cannot import wandb")
+  echo "# fit: $PYTHON cannot import wandb: the fit runs with --trainer.logger false (no W&B run)"
+fi
 step sfm 60 -- -m simplenerf sparse-depth --config configs/llff.yaml "${data[@]}"
 step benchmark_fp32 55 --from-json "$OUT/logs/benchmark_fp32.log" -- \
   "${bench[@]}" --label fp32 --precision 32-true -- "${data[@]}"
@@ -153,7 +162,7 @@ else
     --note "no release at RELEASE_SRC=$RELEASE_SRC (docs/equivalence.md: a clone at c429746)"
   echo "gpu.sh: release_equivalence skipped: no release at RELEASE_SRC=$RELEASE_SRC" >&2
 fi
-step fit 150 --checkpoint "$OUT/fit/checkpoints/last.ckpt" -- "${fit[@]}"
+step fit 150 --checkpoint "$OUT/fit/checkpoints/last.ckpt" ${fit_note[@]+"${fit_note[@]}"} -- "${fit[@]}"
 if [ -f "$OUT/fit/checkpoints/last.ckpt" ] || [ "$DRY_RUN" = 1 ]; then
   step test 55 --test-summary "$OUT/fit/test/summary.json" -- \
     -m simplenerf test --config "$OUT/fit/config.yaml" --ckpt_path last

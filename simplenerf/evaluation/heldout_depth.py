@@ -14,8 +14,7 @@ import torch
 
 from simplenerf.data.batches import RayBatch
 from simplenerf.data.scene import Scene
-from simplenerf.sfm.known_poses import SparseDepth
-from simplenerf.sfm.sparse_depth import load_or_compute_sparse_depth
+from simplenerf.sfm.sparse_depth import SparseDepth, load_or_compute_sparse_depth
 
 if TYPE_CHECKING:
     from simplenerf.geometry.views import Views

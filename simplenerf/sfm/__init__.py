@@ -1,5 +1,9 @@
-"""Structure from motion with pycolmap: sparse depth of posed views (DS-NeRF's prior) and own photos -> a scene."""
+"""Structure from motion with pycolmap: sparse depth of posed views (DS-NeRF's prior) and own photos -> a scene.
 
+Without pycolmap installed the package still imports, and `sparse_depth.load_or_compute_sparse_depth` reads results
+cached before (a GPU machine given a cache); everything that runs COLMAP needs it."""
+
+import importlib.util as _importlib_util
 import signal as _signal
 
 
@@ -19,4 +23,5 @@ def _import_pycolmap_keeping_signal_handlers() -> None:
                 return
 
 
-_import_pycolmap_keeping_signal_handlers()
+if _importlib_util.find_spec("pycolmap") is not None:
+    _import_pycolmap_keeping_signal_handlers()

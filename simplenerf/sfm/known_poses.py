@@ -13,29 +13,12 @@ import pycolmap
 
 from simplenerf.errors import SfMError
 from simplenerf.sfm.colmap import colmap_cam_from_world, colmap_stage
+from simplenerf.sfm.sparse_depth import SparseDepth
 
 ADVICE = (
     "Try more views, a higher resolution (e.g. images_4 instead of images_8), and check that the poses and "
     "intrinsics are right (OpenGL c2w, scene units, intrinsics of this resolution)."
 )
-
-
-@dataclass
-class SparseDepth:
-    """Sparse depth of one view: M pixels with the depth of the 3D point observed there."""
-
-    pixels: np.ndarray  # [M, 2] float32, (u, v) continuous keypoint location in this project's pixel convention
-    depth: np.ndarray  # [M] float32, camera z-depth in scene units (t along the pixel's ray)
-    reprojection_error: np.ndarray  # [M] float32, mean reprojection error of the 3D point over its track, pixels
-    point_ids: np.ndarray  # [M] int64, 3D point id: the same id in two views is the same 3D point
-
-    def __len__(self) -> int:
-        return int(self.depth.shape[0])
-
-    @property
-    def pixel_indices(self) -> np.ndarray:
-        """[M, 2] int64 (column, row) of the pixel each keypoint lies on (nearest integer coordinate)."""
-        return np.rint(self.pixels).astype(np.int64)
 
 
 def write_images(images: list[np.ndarray], folder: Path) -> list[str]:

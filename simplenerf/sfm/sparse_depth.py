@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import importlib.util
 import inspect
 import json
 import logging
@@ -34,6 +35,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -42,10 +44,27 @@ from numpy.typing import ArrayLike
 
 from simplenerf.errors import SfMError
 from simplenerf.metrics.scores import to_uint8
-from simplenerf.sfm.colmap import CameraSetup, colmap_log_level, colmap_pinhole_params, extract_and_match, log
-from simplenerf.sfm.known_poses import ADVICE, SparseDepth, collect, triangulate, verified_pairs, write_images
 
 logger = logging.getLogger(__name__)
+
+
+@dataclass
+class SparseDepth:
+    """Sparse depth of one view: M pixels with the depth of the 3D point observed there."""
+
+    pixels: np.ndarray  # [M, 2] float32, (u, v) continuous keypoint location in this project's pixel convention
+    depth: np.ndarray  # [M] float32, camera z-depth in scene units (t along the pixel's ray)
+    reprojection_error: np.ndarray  # [M] float32, mean reprojection error of the 3D point over its track, pixels
+    point_ids: np.ndarray  # [M] int64, 3D point id: the same id in two views is the same 3D point
+
+    def __len__(self) -> int:
+        return int(self.depth.shape[0])
+
+    @property
+    def pixel_indices(self) -> np.ndarray:
+        """[M, 2] int64 (column, row) of the pixel each keypoint lies on (nearest integer coordinate)."""
+        return np.rint(self.pixels).astype(np.int64)
+
 
 # Bump when the output for the same inputs and options changes, so stale caches are recomputed, not reused.
 CACHE_VERSION = 1
@@ -110,6 +129,10 @@ def compute_sparse_depth(
 
 def _compute(images_u8, intrinsics_np, c2w_np, percentile, min_track_length, max_num_features, guided_matching,
              min_tri_angle, max_reprojection_error, seed, num_threads, progress) -> list[SparseDepth]:
+    # Imported here, not at the top: pycolmap is needed to compute sparse depth, not to read it from the cache.
+    from simplenerf.sfm.colmap import CameraSetup, colmap_log_level, colmap_pinhole_params, extract_and_match, log
+    from simplenerf.sfm.known_poses import ADVICE, collect, triangulate, verified_pairs, write_images
+
     with tempfile.TemporaryDirectory(prefix="simplenerf-sfm-") as work, colmap_log_level(verbose=progress):
         work_dir = Path(work)
         start = time.perf_counter()
@@ -224,6 +247,10 @@ def load_or_compute_sparse_depth(
     if cached is not None:
         logger.info("sparse depth: loaded %s", npz_path)
         return cached
+    if importlib.util.find_spec("pycolmap") is None:
+        raise SfMError(f"sparse depth: no cached result {npz_path} for {identity['key']}, and computing it (SfM) needs "
+                       "pycolmap, which is not installed: pip install pycolmap==4.2.1 (pyproject.toml's pin), or copy "
+                       "the cache folder from a machine where `simplenerf sparse-depth` ran with the same config")
     views = compute_sparse_depth(images_u8, intrinsics_np, c2w_np, **options)
     try:
         _write_cache(cache_dir, npz_path, json_path, identity, views)

@@ -14,7 +14,6 @@ import os
 from fractions import Fraction
 from pathlib import Path
 
-import av
 import lightning as L
 import numpy as np
 import torch
@@ -75,6 +74,9 @@ class H264Writer:
     (`+faststart`) so a browser starts playing before the whole file has loaded."""
 
     def __init__(self, path: Path, width: int, height: int, fps: float, crf: int = 18) -> None:
+        import av  # here, not at the top: PyAV is needed to write a video, not to train or test
+
+        self._av = av
         try:
             self.container = av.open(str(path), mode="w", container_options={"movflags": "+faststart"})
         except (ValueError, av.FFmpegError) as e:
@@ -84,7 +86,7 @@ class H264Writer:
         self.stream.options = {"crf": str(crf)}
 
     def write(self, rgb: np.ndarray) -> None:
-        for packet in self.stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")):
+        for packet in self.stream.encode(self._av.VideoFrame.from_ndarray(rgb, format="rgb24")):
             self.container.mux(packet)
 
     def close(self) -> None:
@@ -97,7 +99,7 @@ class H264Writer:
         """Closes the file without flushing (it is about to be deleted)."""
         try:
             self.container.close()
-        except av.FFmpegError:
+        except self._av.FFmpegError:
             pass
 
 

@@ -6,7 +6,7 @@ import torch
 
 from simplenerf.data.synthetic import SyntheticDataModule
 from simplenerf.evaluation.heldout_depth import heldout_depth_error
-from simplenerf.sfm.known_poses import SparseDepth
+from simplenerf.sfm.sparse_depth import SparseDepth
 from tests.method.test_module import simplenerf_module
 
 

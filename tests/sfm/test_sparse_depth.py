@@ -8,6 +8,8 @@ model (simplenerf.geometry.rays), which catches any half-pixel or axis mistake i
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,8 +22,7 @@ from simplenerf.data.llff import load_llff_scene, subset
 from simplenerf.errors import SfMError
 from simplenerf.geometry.rays import pixel_rays, project
 from simplenerf.sfm.colmap import colmap_cam_from_world, colmap_pinhole_params
-from simplenerf.sfm.known_poses import SparseDepth
-from simplenerf.sfm.sparse_depth import compute_sparse_depth, load_or_compute_sparse_depth
+from simplenerf.sfm.sparse_depth import SparseDepth, compute_sparse_depth, load_or_compute_sparse_depth
 from simplenerf.synthetic.generate import make_synthetic_scene
 from tests.conftest import require_shared
 
@@ -190,6 +191,49 @@ def test_cache_round_trip(synthetic: dict, tmp_path: Path, monkeypatch: pytest.M
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     with pytest.raises(AssertionError, match="cache was not used"):
         load_or_compute_sparse_depth(tmp_path, key, images, views.intrinsics, views.c2w, percentile=(1.0, 99.0))
+
+
+WITHOUT_PYCOLMAP = """
+import sys
+sys.modules["pycolmap"] = None  # `import pycolmap` raises ModuleNotFoundError, as on a machine without it
+import numpy as np
+import torch
+import simplenerf.data.scene  # the fit's path to the sparse depth imports without pycolmap
+from simplenerf.errors import SfMError
+from simplenerf.sfm.sparse_depth import load_or_compute_sparse_depth
+cache, inputs = sys.argv[1], torch.load(sys.argv[2])
+inputs["images"] = list(inputs["images"].numpy())
+views = load_or_compute_sparse_depth(cache, inputs["key"], inputs["images"], inputs["intrinsics"], inputs["c2w"])
+print("loaded", [len(v) for v in views], float(sum(v.depth.sum() for v in views)))
+try:
+    load_or_compute_sparse_depth(cache, inputs["key"], inputs["images"], inputs["intrinsics"], inputs["c2w"],
+                                 percentile=(1.0, 99.0))
+except SfMError as e:
+    print("miss:", e)
+assert "pycolmap" not in sys.modules or sys.modules["pycolmap"] is None
+"""
+
+
+def test_cached_sparse_depth_loads_without_pycolmap(synthetic: dict, tmp_path: Path) -> None:
+    """A machine without pycolmap (a GPU machine given the cache) reads a cached result; a cache miss there names the
+    missing file and pycolmap instead of failing at import."""
+    views, _ = synthetic[2]
+    images = _uint8(views.images)
+    key = {"scene": "synthetic", "views": [3, 5], "height": HEIGHT, "width": WIDTH}
+    first = load_or_compute_sparse_depth(tmp_path / "cache", key, images, views.intrinsics, views.c2w)
+    inputs = {"key": key, "images": torch.from_numpy(np.stack(images)), "intrinsics": views.intrinsics,
+              "c2w": views.c2w}
+    torch.save(inputs, tmp_path / "in.pt")
+    result = subprocess.run([sys.executable, "-c", WITHOUT_PYCOLMAP, str(tmp_path / "cache"), str(tmp_path / "in.pt")],
+                            capture_output=True, text=True, timeout=120, cwd=Path(__file__).parents[2])
+    assert result.returncode == 0, result.stderr
+    loaded, miss = result.stdout.splitlines()
+    total = float(sum(v.depth.sum() for v in first))
+    assert loaded.split(" ", 1)[0] == "loaded"
+    assert loaded.split(" ", 1)[1] == f"{[len(v) for v in first]} {total}"
+    assert miss.startswith("miss: sparse depth: no cached result ")
+    assert "pycolmap is not installed" not in miss and "needs pycolmap, which is not installed" in miss
+    assert str(tmp_path / "cache" / "sparse_depth_") in miss
 
 
 def test_fern_two_views_images_8_yield_points() -> None:

@@ -195,9 +195,9 @@ def run_our_step(module, batch, draws: list[randomness.Draws], optimizer: torch.
         calls.append((sigma.detach().clone(), pending_rgb.pop(0)))
         return sigma
 
-    def capture_render(rays, randomized, color=True):
+    def capture_render(*args, **kwargs):  # SimpleNeRF.render's arguments, whatever they become
         calls.clear()
-        renders = render(rays, randomized, color)
+        renders = render(*args, **kwargs)
         names = ["main coarse", "main fine", *renders.augmented]
         outputs = {}
         for name, (sigma, rgb) in zip(names, calls, strict=True):
@@ -218,9 +218,9 @@ def run_our_step(module, batch, draws: list[randomness.Draws], optimizer: torch.
 
     mask_calls: list[torch.Tensor] = []
 
-    def capture_masked(z_main, z_other, mask, direction):
+    def capture_masked(z_main, z_other, mask, *args, **kwargs):  # masked_depth_loss's, whatever follow the mask
         mask_calls.append(mask.detach().clone())
-        return masked(z_main, z_other, mask, direction)
+        return masked(z_main, z_other, mask, *args, **kwargs)
 
     logged: dict[str, torch.Tensor] = {}
     module.nerf.evaluate, module.render = capture_evaluate, capture_render

@@ -106,13 +106,14 @@ step() {  # step NAME LIMIT_S [record options --] PYTHON_ARGS...: runs "$PYTHON"
 }
 
 if [ "$DRY_RUN" = 0 ]; then
-  if compgen -G "$WHEELS/*.whl" > /dev/null; then
-    "$PYTHON" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
-      "$WHEELS"/*.whl && export PYTHONPATH=/tmp/site:$PYTHONPATH
-  fi
   if ! "$PYTHON" -c 'import sys, torch; sys.exit(0 if torch.cuda.is_available() else 1)' 2> /dev/null; then
     echo "gpu.sh: no CUDA device (torch.cuda.is_available() is not True for $PYTHON): nothing run" >&2
     exit 1
+  fi
+  # the wheels after the check: a machine without CUDA gets nothing installed either
+  if compgen -G "$WHEELS/*.whl" > /dev/null; then
+    "$PYTHON" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site \
+      "$WHEELS"/*.whl && export PYTHONPATH=/tmp/site:$PYTHONPATH
   fi
   [ -f "$SCENE/poses_bounds.npy" ] || { echo "gpu.sh: no LLFF scene at $SCENE (set SCENE or SIMPLENERF_SHARED)" >&2; exit 2; }
   mkdir -p "$OUT/logs"

@@ -42,9 +42,11 @@ def probe(setting: str | None) -> dict:
 def test_large_blocks_are_reused_instead_of_faulted_in_again():
     default, reused = probe(None), probe("reuse")
     assert not default["applied"] and reused["applied"]
-    # glibc's default faults every round's activations in again (~330 k pages here); kept memory settles to ~none.
+    # glibc's default faults every round's activations in again (~330 k pages here); kept memory settles to a few
+    # rounds' worth of 0 to 65536 pages (which rounds, and how many, vary from run to run and with the thread count), so
+    # the last three rounds are judged together: under a tenth of the default's.
     assert min(default["faults"]) > 250_000, default
-    assert reused["faults"][-1] < min(default["faults"]) // 10, reused
+    assert sum(reused["faults"][2:]) < sum(default["faults"][2:]) // 10, (reused, default)
 
 
 def test_is_opt_in(monkeypatch):

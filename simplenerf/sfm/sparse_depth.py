@@ -68,6 +68,8 @@ class SparseDepth:
 
 # Bump when the output for the same inputs and options changes, so stale caches are recomputed, not reused.
 CACHE_VERSION = 1
+
+
 def compute_sparse_depth(
     images: Sequence[ArrayLike] | ArrayLike,
     intrinsics: ArrayLike,

@@ -232,7 +232,7 @@ def test_cached_sparse_depth_loads_without_pycolmap(synthetic: dict, tmp_path: P
     assert loaded.split(" ", 1)[0] == "loaded"
     assert loaded.split(" ", 1)[1] == f"{[len(v) for v in first]} {total}"
     assert miss.startswith("miss: sparse depth: no cached result ")
-    assert "pycolmap is not installed" not in miss and "needs pycolmap, which is not installed" in miss
+    assert "computing it (SfM) needs pycolmap, which is not installed: pip install pycolmap==4.2.1" in miss
     assert str(tmp_path / "cache" / "sparse_depth_") in miss
 
 

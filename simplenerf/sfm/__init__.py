@@ -23,5 +23,7 @@ def _import_pycolmap_keeping_signal_handlers() -> None:
                 return
 
 
-if _importlib_util.find_spec("pycolmap") is not None:
+# Asked once, here; `sparse_depth` reads it before a computation that would need pycolmap.
+PYCOLMAP_INSTALLED = _importlib_util.find_spec("pycolmap") is not None
+if PYCOLMAP_INSTALLED:
     _import_pycolmap_keeping_signal_handlers()

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import importlib.util
 import inspect
 import json
 import logging
@@ -44,6 +43,7 @@ from numpy.typing import ArrayLike
 
 from simplenerf.errors import SfMError
 from simplenerf.metrics.scores import to_uint8
+from simplenerf.sfm import PYCOLMAP_INSTALLED
 
 logger = logging.getLogger(__name__)
 
@@ -249,7 +249,7 @@ def load_or_compute_sparse_depth(
     if cached is not None:
         logger.info("sparse depth: loaded %s", npz_path)
         return cached
-    if importlib.util.find_spec("pycolmap") is None:
+    if not PYCOLMAP_INSTALLED:
         raise SfMError(f"sparse depth: no cached result {npz_path} for {identity['key']}, and computing it (SfM) needs "
                        "pycolmap, which is not installed: pip install pycolmap==4.2.1 (pyproject.toml's pin), or copy "
                        "the cache folder from a machine where `simplenerf sparse-depth` ran with the same config")

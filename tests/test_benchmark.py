@@ -12,7 +12,7 @@ import pytest
 import torch
 from torch import nn
 
-from benchmarks.speed import gpu_report
+from benchmarks.speed import gpu_report, grid_sample_threads
 from benchmarks.speed.profile_step import main as profile_main
 from benchmarks.speed.profile_step import matmul_time
 from benchmarks.speed.render import crop_rows
@@ -180,3 +180,25 @@ def test_weights_load_a_checkpoint_of_the_config_and_name_one_that_does_not_fit(
     other = re.escape(f"checkpoint {tmp_path / 'other.ckpt'} does not fit the model: {name} is ")
     with pytest.raises(CheckpointError, match=other):
         training_args(["--weights", str(tmp_path / "other.ckpt"), *_tiny(tmp_path)], "", {})
+
+
+def test_grid_sample_threads_times_both_ways_and_names_what_sample_plane_picks(capsys):
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        record = grid_sample_threads.main(["--points", "200", "--samples", "10", "--planes", "2x4x8", "2x32x32",
+                                           "--reps", "1"])
+    finally:
+        torch.set_num_threads(threads)
+    assert [row["picks"] for row in record["rows"]] == [2, 1]  # 32 nodes <= 200 points; 1024 nodes > 200
+    assert all(len(row["one_entry_ms"]) == 2 and len(row["per_thread_ms"]) == 2 for row in record["rows"])
+    out = capsys.readouterr().out
+    assert "| 2x4x8 |" in out and "one per thread |" in out and json.loads(out.splitlines()[-1]) == record
+
+
+def test_grid_sample_threads_rays_run_along_the_height_axis_inside_the_box():
+    coords = grid_sample_threads.ray_coords(25, 10, "ray", torch.Generator().manual_seed(0))  # 3 rays, the last cut
+    assert coords.shape == (25, 2) and coords.abs().max() <= 1.0
+    rays = coords[:20].view(2, 10, 2)
+    assert torch.equal(rays[:, :, 0], rays[:, :1, 0].expand(2, 10))  # the width coordinate is the ray's own
+    torch.testing.assert_close(rays[:, -1, 1] - rays[:, 0, 1], torch.full((2,), 0.1))

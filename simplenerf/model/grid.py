@@ -61,6 +61,13 @@ def trunc_exp(x: torch.Tensor) -> torch.Tensor:
 def sample_plane(plane: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
     """Bilinear interpolation of one plane.
 
+    On the CPU, PyTorch's `grid_sample` and its backward divide their work among threads by batch entry only, so a
+    plane sampled as one batch entry runs on one core (its backward was 30-37% of a `simplerf_images4.yaml` step on 2
+    threads; docs/benchmarks.md "The grid step on both cores"). Where the plane has at most as many nodes as there are
+    points, the points are cut into one batch entry per thread over the same plane (`expand`, no copy); the entries'
+    gradients are summed, which costs a pass over a copy of the plane per thread, hence the bound. Values are the
+    same; a node's gradient sums the same terms in another order (float rounding).
+
     Args:
         plane: [1, C, H, W]. coords: [P, 2] (width coordinate, height coordinate) in [-1, 1] (node 0 at -1, node
             n - 1 at +1; outside: the border value).
@@ -68,16 +75,64 @@ def sample_plane(plane: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
     Returns:
         [C, P].
     """
-    grid = coords.to(plane.dtype).view(1, -1, 1, 2)
-    out = F.grid_sample(plane, grid, mode="bilinear", padding_mode="border", align_corners=True)  # [1, C, P, 1]
-    return out.view(plane.shape[1], -1)
+    grid = coords.to(plane.dtype)
+    points, channels = grid.shape[0], plane.shape[1]
+    parts = split_points(plane, points)
+    if parts > 1:
+        pad = -points % parts  # repeats the last point; its values are dropped, so it adds no gradient
+        if pad:
+            grid = torch.cat([grid, grid[-1:].expand(pad, 2)])
+        out = F.grid_sample(plane.expand(parts, -1, -1, -1), grid.view(parts, -1, 1, 2), mode="bilinear",
+                            padding_mode="border", align_corners=True)  # [parts, C, P / parts, 1]
+        return out.transpose(0, 1).reshape(channels, -1)[:, :points]
+    out = F.grid_sample(plane, grid.view(1, -1, 1, 2), mode="bilinear", padding_mode="border",
+                        align_corners=True)  # [1, C, P, 1]
+    return out.view(channels, -1)
+
+
+def split_points(plane: torch.Tensor, points: int) -> int:
+    """Batch entries to cut `points` samples of `plane` [1, C, H, W] into: one per intra-op thread on the CPU when
+    the plane has at most `points` nodes (H W), else 1 (one entry; also on a GPU, whose kernel spreads the points)."""
+    threads = torch.get_num_threads()
+    if plane.device.type != "cpu" or threads < 2 or points < 2 * threads:
+        return 1
+    return threads if plane.shape[-2] * plane.shape[-1] <= points else 1
 
 
 def plane_tv(plane: torch.Tensor) -> torch.Tensor:
     """K-Planes' total variation of one plane [1, C, H, W]: 2 (mean squared difference along H + along W)."""
-    tv_h = torch.square(plane[..., 1:, :] - plane[..., :-1, :]).mean()
-    tv_w = torch.square(plane[..., :, 1:] - plane[..., :, :-1]).mean()
-    return 2.0 * (tv_h + tv_w)
+    return _PlaneTV.apply(plane)
+
+
+class _PlaneTV(torch.autograd.Function):
+    """`plane_tv` with its gradient written into one buffer. Autograd's graph of the same formula (per axis two
+    slices, a difference, a square and a mean) makes about 25 passes over a copy of the plane in the backward (the
+    mean's gradient materialised, the square's, a zero-filled plane per slice, a negation, four additions): on the
+    1024-node plane of `simplerf_images4.yaml` about a fifth of a step. Here: two differences and two dot products
+    forward, one product and three fused multiply-adds backward (docs/benchmarks.md "The grid step on both cores")."""
+
+    @staticmethod
+    def forward(ctx, plane: torch.Tensor) -> torch.Tensor:
+        d_h = plane[..., 1:, :] - plane[..., :-1, :]  # [1, C, H - 1, W]
+        d_w = plane[..., :, 1:] - plane[..., :, :-1]  # [1, C, H, W - 1]
+        ctx.save_for_backward(d_h, d_w)
+        sq_h = torch.dot(d_h.reshape(-1), d_h.reshape(-1))
+        sq_w = torch.dot(d_w.reshape(-1), d_w.reshape(-1))
+        return 2.0 * (sq_h / d_h.numel() + sq_w / d_w.numel())
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        d_h, d_w = ctx.saved_tensors
+        c_h, c_w = grad * (4.0 / d_h.numel()), grad * (4.0 / d_w.numel())  # d/dd of 2 mean(d^2): 4 d / n
+        shape = (*d_h.shape[:-2], d_h.shape[-2] + 1, d_h.shape[-1])
+        out = torch.empty(shape, dtype=d_h.dtype, device=d_h.device)
+        # node i is the + end of difference i - 1 and the - end of difference i (along each axis)
+        torch.mul(d_h, c_h, out=out[..., 1:, :])
+        out[..., :1, :].zero_()
+        out[..., :-1, :].addcmul_(d_h, -c_h)
+        out[..., :, 1:].addcmul_(d_w, c_w)
+        out[..., :, :-1].addcmul_(d_w, -c_w)
+        return out
 
 
 class KPlanesField(Field):

@@ -10,7 +10,7 @@ import torch
 import yaml
 
 from simplenerf.model.fields import Field
-from simplenerf.model.grid import KPlanesField, plane_tv, sample_plane, trunc_exp
+from simplenerf.model.grid import KPlanesField, plane_tv, sample_plane, split_points, trunc_exp
 from simplenerf.model.rendering import compute_weights
 from simplenerf.model.samples import Samples
 from tests.conftest import REPO
@@ -48,6 +48,40 @@ def test_interpolation_at_nodes_returns_node_values_and_is_bilinear_between():
                                rtol=0, atol=1e-6)
     # Outside the box: the border value.
     torch.testing.assert_close(sample_plane(plane, torch.tensor([[5.0, -3.0]]))[:, 0], plane[0, :, 0, 6])
+
+
+@pytest.fixture
+def two_threads():
+    """torch with 2 intra-op threads for one test (xdist workers run with 1), restored after."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    yield
+    torch.set_num_threads(threads)
+
+
+def test_split_points_cuts_a_plane_no_larger_than_the_points_into_one_entry_per_thread(two_threads):
+    small, large = torch.zeros(1, 4, 8, 16), torch.zeros(1, 4, 64, 64)  # 128 and 4096 nodes
+    assert split_points(small, 1000) == 2
+    assert split_points(large, 1000) == 1  # the summed per-thread gradients would cost more than they save
+    assert split_points(small, 3) == 1  # fewer points than two per thread
+    torch.set_num_threads(1)
+    assert split_points(small, 1000) == 1
+
+
+@pytest.mark.parametrize("points", [1000, 1001])  # 1001: one point repeated to fill the second entry
+def test_sampling_split_among_threads_gives_the_same_values_and_gradients(two_threads, points):
+    generator = torch.Generator().manual_seed(0)
+    plane = torch.rand(1, 4, 8, 16, generator=generator, requires_grad=True)
+    coords = torch.rand(points, 2, generator=generator) * 2.4 - 1.2  # some outside the box: border values
+    weights = torch.rand(4, points, generator=generator)
+    split = sample_plane(plane, coords)
+    (split_grad,) = torch.autograd.grad((split * weights).sum(), plane)
+    torch.set_num_threads(1)
+    whole = sample_plane(plane, coords)
+    (whole_grad,) = torch.autograd.grad((whole * weights).sum(), plane)
+    assert split.shape == (4, points)
+    assert torch.equal(split, whole)  # each point's interpolation is computed alone either way
+    torch.testing.assert_close(split_grad, whole_grad, rtol=1e-6, atol=1e-6)  # the same terms, summed in another order
 
 
 def test_features_at_grid_nodes_are_the_product_of_the_three_planes_node_values():
@@ -150,6 +184,20 @@ def test_parameter_groups_split_grids_from_decoders():
     assert len(groups["grid"]) == 6 and all(p.dim() == 4 for p in groups["grid"])
     ids = [id(p) for ps in groups.values() for p in ps]
     assert sorted(ids) == sorted(id(p) for p in field.parameters())  # a partition of all parameters
+
+
+def test_plane_tv_gradient_is_that_of_its_formula():
+    plane = torch.rand(1, 3, 5, 7, generator=torch.Generator().manual_seed(0), dtype=torch.float64,
+                       requires_grad=True)
+    formula = 2.0 * (torch.square(plane[..., 1:, :] - plane[..., :-1, :]).mean()
+                     + torch.square(plane[..., :, 1:] - plane[..., :, :-1]).mean())
+    (expected,) = torch.autograd.grad(3.0 * formula, plane)
+    (grad,) = torch.autograd.grad(3.0 * plane_tv(plane), plane)
+    torch.testing.assert_close(plane_tv(plane), formula, rtol=1e-12, atol=0)
+    torch.testing.assert_close(grad, expected, rtol=1e-12, atol=1e-15)
+    # by hand at a corner node (0, 0), the - end of one difference along each axis: 3 * 4 / n * -(d_h + d_w)
+    d_h, d_w = (plane[0, :, 1, 0] - plane[0, :, 0, 0]).detach(), (plane[0, :, 0, 1] - plane[0, :, 0, 0]).detach()
+    torch.testing.assert_close(grad[0, :, 0, 0], -12.0 * (d_h / (3 * 4 * 7) + d_w / (3 * 5 * 6)), rtol=1e-12, atol=0)
 
 
 def test_regularization_is_the_total_variation_of_the_planes_with_its_weight_apart():

@@ -24,6 +24,15 @@ if (_workers := int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0"))) > 1:
     torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
 
 
+@pytest.fixture
+def two_threads():
+    """torch with 2 intra-op threads for one test (xdist workers may run with 1), restored after."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    yield
+    torch.set_num_threads(threads)
+
+
 def shared_dir() -> Path:
     """The project's shared data: $SIMPLENERF_SHARED, else ../shared next to the repository."""
     return Path(os.environ.get("SIMPLENERF_SHARED", REPO.parent / "shared"))

@@ -182,14 +182,9 @@ def test_weights_load_a_checkpoint_of_the_config_and_name_one_that_does_not_fit(
         training_args(["--weights", str(tmp_path / "other.ckpt"), *_tiny(tmp_path)], "", {})
 
 
-def test_grid_sample_threads_times_both_ways_and_names_what_sample_plane_picks(capsys):
-    threads = torch.get_num_threads()
-    torch.set_num_threads(2)
-    try:
-        record = grid_sample_threads.main(["--points", "200", "--samples", "10", "--planes", "2x4x8", "2x32x32",
-                                           "--reps", "1"])
-    finally:
-        torch.set_num_threads(threads)
+def test_grid_sample_threads_times_both_ways_and_names_what_sample_plane_picks(capsys, two_threads):
+    record = grid_sample_threads.main(["--points", "200", "--samples", "10", "--planes", "2x4x8", "2x32x32",
+                                       "--reps", "1"])
     assert [row["picks"] for row in record["rows"]] == [2, 1]  # 32 nodes <= 200 points; 1024 nodes > 200
     assert all(len(row["one_entry_ms"]) == 2 and len(row["per_thread_ms"]) == 2 for row in record["rows"])
     out = capsys.readouterr().out

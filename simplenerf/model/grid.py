@@ -58,7 +58,7 @@ def trunc_exp(x: torch.Tensor) -> torch.Tensor:
     return _TruncExp.apply(x)
 
 
-def sample_plane(plane: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
+def sample_plane(plane: torch.Tensor, coords: torch.Tensor, parts: int | None = None) -> torch.Tensor:
     """Bilinear interpolation of one plane.
 
     On the CPU, PyTorch's `grid_sample` and its backward divide their work among threads by batch entry only, so a
@@ -71,23 +71,20 @@ def sample_plane(plane: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
     Args:
         plane: [1, C, H, W]. coords: [P, 2] (width coordinate, height coordinate) in [-1, 1] (node 0 at -1, node
             n - 1 at +1; outside: the border value).
+        parts: batch entries to cut the points into (None: `split_points`' choice; 1: one entry).
 
     Returns:
         [C, P].
     """
     grid = coords.to(plane.dtype)
-    points, channels = grid.shape[0], plane.shape[1]
-    parts = split_points(plane, points)
-    if parts > 1:
-        pad = -points % parts  # repeats the last point; its values are dropped, so it adds no gradient
-        if pad:
-            grid = torch.cat([grid, grid[-1:].expand(pad, 2)])
-        out = F.grid_sample(plane.expand(parts, -1, -1, -1), grid.view(parts, -1, 1, 2), mode="bilinear",
-                            padding_mode="border", align_corners=True)  # [parts, C, P / parts, 1]
-        return out.transpose(0, 1).reshape(channels, -1)[:, :points]
-    out = F.grid_sample(plane, grid.view(1, -1, 1, 2), mode="bilinear", padding_mode="border",
-                        align_corners=True)  # [1, C, P, 1]
-    return out.view(channels, -1)
+    points = grid.shape[0]
+    parts = split_points(plane, points) if parts is None else parts
+    pad = -points % parts  # repeats the last point; its values are dropped, so it adds no gradient
+    if pad:
+        grid = torch.cat([grid, grid[-1:].expand(pad, 2)])
+    out = F.grid_sample(plane.expand(parts, -1, -1, -1), grid.view(parts, -1, 1, 2), mode="bilinear",
+                        padding_mode="border", align_corners=True)  # [parts, C, P / parts, 1]
+    return out.transpose(0, 1).reshape(plane.shape[1], -1)[:, :points]  # a view when parts is 1
 
 
 def split_points(plane: torch.Tensor, points: int) -> int:
@@ -116,6 +113,7 @@ class _PlaneTV(torch.autograd.Function):
         d_h = plane[..., 1:, :] - plane[..., :-1, :]  # [1, C, H - 1, W]
         d_w = plane[..., :, 1:] - plane[..., :, :-1]  # [1, C, H, W - 1]
         ctx.save_for_backward(d_h, d_w)
+        ctx.plane_shape = plane.shape
         sq_h = torch.dot(d_h.reshape(-1), d_h.reshape(-1))
         sq_w = torch.dot(d_w.reshape(-1), d_w.reshape(-1))
         return 2.0 * (sq_h / d_h.numel() + sq_w / d_w.numel())
@@ -124,8 +122,7 @@ class _PlaneTV(torch.autograd.Function):
     def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
         d_h, d_w = ctx.saved_tensors
         c_h, c_w = grad * (4.0 / d_h.numel()), grad * (4.0 / d_w.numel())  # d/dd of 2 mean(d^2): 4 d / n
-        shape = (*d_h.shape[:-2], d_h.shape[-2] + 1, d_h.shape[-1])
-        out = torch.empty(shape, dtype=d_h.dtype, device=d_h.device)
+        out = d_h.new_empty(ctx.plane_shape)
         # node i is the + end of difference i - 1 and the - end of difference i (along each axis)
         torch.mul(d_h, c_h, out=out[..., 1:, :])
         out[..., :1, :].zero_()

@@ -50,15 +50,6 @@ def test_interpolation_at_nodes_returns_node_values_and_is_bilinear_between():
     torch.testing.assert_close(sample_plane(plane, torch.tensor([[5.0, -3.0]]))[:, 0], plane[0, :, 0, 6])
 
 
-@pytest.fixture
-def two_threads():
-    """torch with 2 intra-op threads for one test (xdist workers run with 1), restored after."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(2)
-    yield
-    torch.set_num_threads(threads)
-
-
 def test_split_points_cuts_a_plane_no_larger_than_the_points_into_one_entry_per_thread(two_threads):
     small, large = torch.zeros(1, 4, 8, 16), torch.zeros(1, 4, 64, 64)  # 128 and 4096 nodes
     assert split_points(small, 1000) == 2

@@ -45,7 +45,7 @@ from simplenerf.model.rendering import RenderOutputs
 
 RayKind = Literal["random", "sparse"]
 # Names of renders and terms that an augmentation may not take.
-RESERVED_NAMES = ("coarse", "fine", "color", "sparse_depth", "cfc")
+RESERVED_NAMES = ("coarse", "fine", "color", "sparse_depth", "coarse_sparse_depth", "cfc")
 
 
 @dataclass
@@ -56,6 +56,10 @@ class Objective:
         color_weight: lambda_1, weight of the colour loss (main coarse, main fine and each augmentation).
         sparse_depth_weight: lambda_2, weight of DS-NeRF's sparse-depth loss (main fine and each augmentation; used
             when the data module serves sparse-depth rays, `sparse_rays_per_batch` > 0).
+        coarse_sparse_depth_weight: weight of the same sparse-depth loss on the main coarse depth (the term
+            "coarse_sparse_depth"); 0 (the paper and the release): off, and SfM depth reaches the main coarse field
+            only through L_cfc's sparse-ray part once L_cfc is on. Not in the paper: on the grid the coarse field
+            otherwise starts L_cfc with a depth it was never taught (docs/results.md, 19 and 23).
         coarse_fine_mask: reliability mask of the coarse-fine consistency loss L_cfc; null disables L_cfc.
         coarse_fine_weight: lambda_5, weight of L_cfc (a warm-up schedule may set it per step).
         coarse_fine_on_sparse_rays: as the release, L_cfc also has an unmasked (z_coarse - sg(z_fine))^2 on the
@@ -94,6 +98,7 @@ class Objective:
 
     color_weight: float = 1.0
     sparse_depth_weight: float = 0.1
+    coarse_sparse_depth_weight: float = 0.0
     coarse_fine_mask: ReliabilityMask | None = None
     coarse_fine_weight: float = 0.1
     coarse_fine_on_sparse_rays: bool = True
@@ -189,14 +194,17 @@ class ColorTerm(Term):
 
 
 class SparseDepthTerm(Term):
-    """DS-NeRF's L_sd (lambda_2) on the sparse-depth rays: main fine and each augmentation (not main coarse)."""
+    """DS-NeRF's L_sd (lambda_2) on the sparse-depth rays: main fine and each augmentation (not main coarse); with
+    `coarse`, the term "coarse_sparse_depth": the same loss on the main coarse depth alone."""
 
-    def __init__(self, weight: float) -> None:
-        super().__init__("sparse_depth", weight, ("sparse",))
+    def __init__(self, weight: float, coarse: bool = False) -> None:
+        super().__init__("coarse_sparse_depth" if coarse else "sparse_depth", weight, ("sparse",))
+        self.coarse = coarse
 
     def value(self, rendered: RenderedRays) -> TermValue:
         renders, rays = rendered.renders, rendered.rays
-        return TermValue(sparse_depth_loss([renders.main.fine, *renders.augmented.values()], rays.depth, rays.weight))
+        depths = [renders.main.coarse] if self.coarse else [renders.main.fine, *renders.augmented.values()]
+        return TermValue(sparse_depth_loss(depths, rays.depth, rays.weight))
 
 
 class MaskedDepthTerm(Term):
@@ -276,7 +284,8 @@ class RegularizerTerm(Term):
 
 
 def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[str, Field]) -> dict[str, Term]:
-    """The terms by name, in the order they are summed: colour, sparse depth, one masked depth term per augmentation
+    """The terms by name, in the order they are summed: colour, sparse depth (main fine and augmentations, then main
+    coarse), one masked depth term per augmentation
     (named after it), Simple-RF's mass concentration of those that have one ("<name>_concentration"), the distortion
     of the main renders ("coarse_distortion", "fine_distortion"), the spread of their colours ("coarse_color_spread",
     "fine_color_spread"), L_cfc ("cfc"), then each field's regularisers
@@ -286,7 +295,8 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
         augmentations: `method.augmentations.Augmentation`s. fields: the fields by name ("coarse", "fine" and the
             augmentations' names).
     """
-    terms: list[Term] = [ColorTerm(objective.color_weight), SparseDepthTerm(objective.sparse_depth_weight)]
+    terms: list[Term] = [ColorTerm(objective.color_weight), SparseDepthTerm(objective.sparse_depth_weight),
+                         SparseDepthTerm(objective.coarse_sparse_depth_weight, coarse=True)]
     depth = {"supervision": objective.supervision, "depth_loss_space": objective.depth_loss_space,
              "depth_error_limit": objective.depth_error_limit}
     for aug in augmentations:

@@ -154,6 +154,37 @@ def test_all_paper_losses_after_the_warm_up(datamodule, monkeypatch):
         assert aug.field.trunk[0].weight.grad.abs().sum() > 0
 
 
+def test_the_coarse_sparse_depth_term_is_l_sd_on_the_main_coarse_depth_alone(datamodule, monkeypatch):
+    """`coarse_sparse_depth_weight` adds DS-NeRF's L_sd on the main coarse depth ("coarse_sparse_depth"): its value
+    is mean(weight * (z_coarse - z_sfm)^2) over the sparse rays, none of the fine or augmented depths, and it is in
+    the step's loss with its weight; at its default 0 it is not computed."""
+    from types import SimpleNamespace
+
+    from simplenerf.method.objective import SparseDepthTerm
+
+    depth = SimpleNamespace
+    renders = SimpleNamespace(main=SimpleNamespace(coarse=depth(depth=torch.tensor([1.0, 2.0, 4.0])),
+                                                   fine=depth(depth=torch.tensor([9.0, 9.0, 9.0]))),
+                              augmented={"points": depth(depth=torch.tensor([7.0, 7.0, 7.0]))})
+    rays = SimpleNamespace(depth=torch.tensor([1.0, 1.0, 2.0]), weight=torch.tensor([1.0, 1.0, 0.5]))
+    term = SparseDepthTerm(0.1, coarse=True)
+    assert term.name == "coarse_sparse_depth" and term.reads == ("sparse",)
+    assert term.value(SimpleNamespace(renders=renders, rays=rays)).value.item() == pytest.approx((0 + 1 + 2) / 3)
+
+    model = simplenerf_module()
+    assert model.terms["coarse_sparse_depth"].weight == 0.0
+    _, logged = run_step(model, datamodule, monkeypatch)
+    assert "train/loss_coarse_sparse_depth" not in logged
+    model = simplenerf_module()
+    for name in ("points", "views", "cfc"):
+        model.terms[name].weight = 0.0
+    model.terms["coarse_sparse_depth"].weight = 0.1
+    loss, logged = run_step(model, datamodule, monkeypatch)
+    assert logged["train/loss_coarse_sparse_depth"] > 0
+    assert torch.allclose(loss, logged["train/loss_color"] + 0.1 * logged["train/loss_sparse_depth"]
+                          + 0.1 * logged["train/loss_coarse_sparse_depth"])
+
+
 def test_augmentations_share_the_main_coarse_samples(datamodule, monkeypatch):
     model = simplenerf_module()
     seen = []

@@ -31,6 +31,7 @@ from simplenerf.evaluation.evaluator import (
 from simplenerf.evaluation.visibility import scene_visibility_masks
 from simplenerf.metrics.scores import PSNR_CAP
 from simplenerf.model.nerf import FrameRender
+from tests import preloaded_cli
 from tests.conftest import REPO, shared_dir
 from tests.metrics.test_scores import assert_perfect_scores, lpips_weights
 from tests.run.test_cli import run, run_args
@@ -223,14 +224,12 @@ def test_export_visibility_masks(synthetic_scene, tmp_path) -> None:
 
 def test_visibility_masks_verb(synthetic_scene, tmp_path) -> None:
     import subprocess
-    import sys
 
     def tool(scene_dir: Path) -> subprocess.CompletedProcess:
-        return subprocess.run(
-            [sys.executable, "-m", "simplenerf", "visibility-masks", "--config", "configs/dsnerf.yaml",
-             "--data.init_args.scene_dir", str(scene_dir), "--data.init_args.factor", "1",
-             "--trainer.default_root_dir", str(tmp_path / "run")],
-            cwd=REPO, capture_output=True, text=True, timeout=300,
+        return preloaded_cli.run(
+            ["visibility-masks", "--config", "configs/dsnerf.yaml", "--data.init_args.scene_dir", str(scene_dir),
+             "--data.init_args.factor", "1", "--trainer.default_root_dir", str(tmp_path / "run")],
+            cwd=REPO, timeout=300,
         )
 
     proc = tool(synthetic_scene)

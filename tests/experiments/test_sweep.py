@@ -11,7 +11,6 @@ import os
 import re
 import signal
 import subprocess
-import sys
 from datetime import datetime
 from pathlib import Path
 from unittest import mock
@@ -27,6 +26,7 @@ from simplenerf.experiments.plan import build_plan
 from simplenerf.experiments.spec import SweepError, load_sweep
 from simplenerf.experiments.state import read_state
 from simplenerf.experiments.status import status_table
+from tests import preloaded_cli
 from tests.conftest import REPO
 from tests.experiments.sweep_fixtures import (
     Preempted,
@@ -47,8 +47,7 @@ def wandb_run_id(folder_name: str) -> str:
 
 def sweep_cli(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess:
     env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true", "OMP_NUM_THREADS": "1"}
-    return subprocess.run([sys.executable, "-m", "simplenerf", "sweep", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=600)
+    return preloaded_cli.run(["sweep", *args], cwd=cwd, env=env, timeout=600)
 
 
 @pytest.fixture(scope="module")
@@ -442,8 +441,7 @@ def test_status_asks_slurm_and_cancel_cancels_what_is_queued_or_running(table1_s
     fake_slurm_tool(bin_dir, "squeue", f"{fit}_0|RUNNING|None\n{fit}_[6-47%24]|PENDING|JobArrayTaskLimit\n"
                     f"{test0}_0|PENDING|Dependency\n")
     fake_slurm_tool(bin_dir, "scancel", "")
-    status = subprocess.run([sys.executable, "-m", "simplenerf", "sweep", "status", str(out)], env=env,
-                            capture_output=True, text=True, cwd=REPO)
+    status = preloaded_cli.run(["sweep", "status", str(out)], cwd=REPO, env=env)
     assert status.returncode == 0, status.stderr
     rows = {tuple(c.strip() for c in line.split("|")[1:6]): [c.strip() for c in line.split("|")[6:-1]]
             for line in status.stdout.splitlines() if line.startswith("| fit") or line.startswith("| test")}
@@ -462,8 +460,7 @@ def test_status_asks_slurm_and_cancel_cancels_what_is_queued_or_running(table1_s
     assert row("fit", fits[1])[0] == "pending"  # SLURM knows nothing of it: the sweep's own word
     assert (bin_dir / "sacct.calls").read_text().startswith("-n -P -X -j 1001,1002,")
 
-    cancel = subprocess.run([sys.executable, "-m", "simplenerf", "sweep", "cancel", str(out)], env=env,
-                            capture_output=True, text=True, cwd=REPO)
+    cancel = preloaded_cli.run(["sweep", "cancel", str(out)], cwd=REPO, env=env)
     assert cancel.returncode == 0, cancel.stderr
     assert (bin_dir / "scancel.calls").read_text().split() == [fit, test0]
     assert f"cancelled 2 of {len(submitted)} job arrays: {fit} {test0}" in cancel.stdout
@@ -485,8 +482,7 @@ def test_preflight_lists_every_problem_and_submits_nothing(tmp_path):
     fake_sbatch(tmp_path / "bin")
     env = {k: v for k, v in os.environ.items() if k != "WANDB_MODE"}
     env.update(PATH=f"{tmp_path / 'bin'}:{os.environ['PATH']}", OMP_NUM_THREADS="1")
-    proc = subprocess.run([sys.executable, "-m", "simplenerf", "sweep", "--config", str(path)], cwd=REPO, env=env,
-                          capture_output=True, text=True, timeout=600)
+    proc = preloaded_cli.run(["sweep", "--config", str(path)], cwd=REPO, env=env, timeout=600)
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert lines[0] == "simplenerf: error: 6 problem(s) found before anything ran; nothing was submitted:", lines

@@ -246,8 +246,8 @@ def test_a_schedule_naming_an_unknown_loss_is_one_clear_error():
 
     model = simplenerf_module()
     LossWeightSchedule({"points": [(0, 0.0)], "cfc": [(0, 0.0)]}).check_model(model)  # known names pass
-    known = ("cfc, coarse_color_spread, coarse_distortion, color, fine_color_spread, fine_concentration, "
-             "fine_distortion, points")
+    known = ("cfc, coarse_color_spread, coarse_distortion, coarse_sparse_depth, color, fine_color_spread, "
+             "fine_concentration, fine_distortion, points")
     with pytest.raises(SimpleNeRFError, match=rf"schedules 'point', but the model's losses are {known}"):
         LossWeightSchedule({"point": [(0, 0.0)]}).check_model(model)
 

@@ -9,7 +9,6 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -18,6 +17,7 @@ import yaml
 
 from simplenerf.commands import LIGHTNING_VERBS, TASKS, VERBS, main
 from simplenerf.run.cli import load_for_tool
+from tests import preloaded_cli
 from tests.conftest import REPO, shared_dir
 
 SMALL = [
@@ -47,10 +47,7 @@ def tiny_model(tmp: Path) -> Path:
 
 def run(*args: str, env: dict | None = None, check: bool = True) -> subprocess.CompletedProcess:
     full_env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true", **(env or {})}
-    proc = subprocess.run(
-        [sys.executable, "-m", "simplenerf", *args], cwd=REPO, env=full_env, capture_output=True, text=True,
-        timeout=600,
-    )
+    proc = preloaded_cli.run(list(args), cwd=REPO, env=full_env, timeout=600)
     if check and proc.returncode != 0:
         raise AssertionError(f"exit {proc.returncode}\nstdout:\n{proc.stdout[-3000:]}\nstderr:\n{proc.stderr[-3000:]}")
     return proc

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -18,6 +16,7 @@ from simplenerf.data.llff import load_llff_scene
 from simplenerf.geometry.rays import pixel_grid, project
 from simplenerf.model.nerf import mlp_nerf
 from simplenerf.viz.export import export_geometry, lift_pixels, render_view, write_ply
+from tests import preloaded_cli
 from tests.conftest import REPO
 
 PLY_TYPES = {"float": "<f4", "uchar": "u1"}
@@ -113,9 +112,9 @@ def test_export_geometry_verb_on_the_demo_config(tmp_path) -> None:
     ckpt = tmp_path / "model.ckpt"
     torch.save({"state_dict": cli.model.state_dict()}, ckpt)
     env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true"}
-    proc = subprocess.run([sys.executable, "-m", "simplenerf", "export-geometry", "--config", "configs/demo.yaml",
-                           "--ckpt_path", str(ckpt), "--min_accumulation", "0", "--far_factor", "0", "--stride", "4",
-                           *args[2:]], cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    proc = preloaded_cli.run(["export-geometry", "--config", "configs/demo.yaml", "--ckpt_path", str(ckpt),
+                              "--min_accumulation", "0", "--far_factor", "0", "--stride", "4", *args[2:]],
+                             cwd=REPO, env=env, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = tmp_path / "run" / "geometry"
     saved = json.loads((out / "export.json").read_text())

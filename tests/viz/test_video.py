@@ -1,6 +1,5 @@
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -11,6 +10,7 @@ import torch
 from simplenerf.data.llff import load_llff_scene
 from simplenerf.model.nerf import NeRF, mlp_nerf
 from simplenerf.viz.video import compose_frame, depth_colour_range, frame_rays, render_video, scale_intrinsics
+from tests import preloaded_cli
 from tests.conftest import REPO
 
 
@@ -121,8 +121,7 @@ def test_render_video_leaves_nothing_when_interrupted_or_unwritable(tmp_path, mo
 
 def run_tool(*args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true"}
-    return subprocess.run([sys.executable, "-m", "simplenerf", "render-video", *args], cwd=REPO, env=env,
-                          capture_output=True, text=True, timeout=600)
+    return preloaded_cli.run(["render-video", *args], cwd=REPO, env=env, timeout=600)
 
 
 def test_render_video_verb_on_the_demo_config(tmp_path):

@@ -2,8 +2,9 @@
 
 A start of the command line costs about 6.5 s before any work on the 2-core CPU (importing Lightning, which imports
 torch._dynamo, torchmetrics and scipy; docs/testing.md), and the suite starts it a few hundred times. `run` asks a
-server process, started once per test process, that has imported the command line's modules and nothing else (no
-torch operation has run in it, so no thread pool exists to be copied): it forks, and the child sets up the call as
+server process, started once per test process, that has imported the command line's modules and runs nothing else
+(no training, no rendering; the imports start three native threads there, which a fork does not copy into the
+child, as POSIX has it: only the forking thread goes on): it forks, and the child sets up the call as
 `subprocess.run` would (working directory, environment, stdout and stderr to files, stdin from /dev/null, argv) and
 runs `simplenerf`'s `__main__` with `runpy`, as `python -m simplenerf` does, then exits the way an interpreter exits
 (atexit handlers, exit status, a traceback and status 1 on an uncaught exception). What differs from a fresh

@@ -162,10 +162,11 @@ def test_the_coarse_sparse_depth_term_is_l_sd_on_the_main_coarse_depth_alone(dat
 
     from simplenerf.method.objective import SparseDepthTerm
 
-    depth = SimpleNamespace
-    renders = SimpleNamespace(main=SimpleNamespace(coarse=depth(depth=torch.tensor([1.0, 2.0, 4.0])),
-                                                   fine=depth(depth=torch.tensor([9.0, 9.0, 9.0]))),
-                              augmented={"points": depth(depth=torch.tensor([7.0, 7.0, 7.0]))})
+    def render(*depths: float) -> SimpleNamespace:
+        return SimpleNamespace(depth=torch.tensor(depths))
+
+    renders = SimpleNamespace(main=SimpleNamespace(coarse=render(1.0, 2.0, 4.0), fine=render(9.0, 9.0, 9.0)),
+                              augmented={"points": render(7.0, 7.0, 7.0)})
     rays = SimpleNamespace(depth=torch.tensor([1.0, 1.0, 2.0]), weight=torch.tensor([1.0, 1.0, 0.5]))
     term = SparseDepthTerm(0.1, coarse=True)
     assert term.name == "coarse_sparse_depth" and term.reads == ("sparse",)

@@ -9,8 +9,7 @@ from simplenerf.viewer.export import interpolate_path
 from simplenerf.viewer.modes import RenderMode
 from simplenerf.viewer.progressive import ProgressiveRenderer, RenderRequest
 from simplenerf.viz.camera_path import read_camera_path
-from tests import preloaded_cli
-from tests.conftest import REPO
+from tests.run.test_cli import run
 
 
 def train_camera(viewer, view: int) -> ViewerCamera:
@@ -108,9 +107,9 @@ def test_screenshot_and_camera_path_export(viewer, viewer_run, tmp_path):
 
     # render-video takes the exported path: one frame per pose
     folder, video = viewer_run[0], tmp_path / "path.mp4"
-    proc = preloaded_cli.run(["render-video", "--config", str(folder / "config.yaml"),
-                              "--ckpt_path", str(folder / "checkpoints" / "last.ckpt"), "--trajectory", str(out),
-                              "--scale", "0.25", "--out", str(video)], cwd=REPO, timeout=300)
+    proc = run("render-video", "--config", str(folder / "config.yaml"), "--ckpt_path",
+               str(folder / "checkpoints" / "last.ckpt"), "--trajectory", str(out), "--scale", "0.25", "--out",
+               str(video), check=False)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert f"video: {video} (5 frames of " in proc.stdout and video.stat().st_size > 0
 

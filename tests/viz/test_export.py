@@ -4,7 +4,6 @@ back with a minimal PLY reader."""
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import cv2
@@ -16,8 +15,6 @@ from simplenerf.data.llff import load_llff_scene
 from simplenerf.geometry.rays import pixel_grid, project
 from simplenerf.model.nerf import mlp_nerf
 from simplenerf.viz.export import export_geometry, lift_pixels, render_view, write_ply
-from tests import preloaded_cli
-from tests.conftest import REPO
 
 PLY_TYPES = {"float": "<f4", "uchar": "u1"}
 
@@ -105,16 +102,14 @@ def test_export_of_a_tiny_model(synthetic_scene, tmp_path) -> None:
 
 def test_export_geometry_verb_on_the_demo_config(tmp_path) -> None:
     from simplenerf.run.cli import make_cli
-    from tests.run.test_cli import run_args
+    from tests.run.test_cli import run, run_args
 
     args = run_args(tmp_path)
     cli = make_cli([*args, "--trainer.logger", "false"], run=False)  # an untrained model: its state dict will do
     ckpt = tmp_path / "model.ckpt"
     torch.save({"state_dict": cli.model.state_dict()}, ckpt)
-    env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true"}
-    proc = preloaded_cli.run(["export-geometry", "--config", "configs/demo.yaml", "--ckpt_path", str(ckpt),
-                              "--min_accumulation", "0", "--far_factor", "0", "--stride", "4", *args[2:]],
-                             cwd=REPO, env=env, timeout=600)
+    proc = run("export-geometry", "--config", "configs/demo.yaml", "--ckpt_path", str(ckpt), "--min_accumulation", "0",
+               "--far_factor", "0", "--stride", "4", *args[2:], check=False)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = tmp_path / "run" / "geometry"
     saved = json.loads((out / "export.json").read_text())

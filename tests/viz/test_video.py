@@ -1,4 +1,3 @@
-import os
 import subprocess
 from pathlib import Path
 
@@ -10,8 +9,6 @@ import torch
 from simplenerf.data.llff import load_llff_scene
 from simplenerf.model.nerf import NeRF, mlp_nerf
 from simplenerf.viz.video import compose_frame, depth_colour_range, frame_rays, render_video, scale_intrinsics
-from tests import preloaded_cli
-from tests.conftest import REPO
 
 
 def tiny_nerf() -> NeRF:
@@ -120,8 +117,9 @@ def test_render_video_leaves_nothing_when_interrupted_or_unwritable(tmp_path, mo
 
 
 def run_tool(*args: str) -> subprocess.CompletedProcess:
-    env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true"}
-    return preloaded_cli.run(["render-video", *args], cwd=REPO, env=env, timeout=600)
+    from tests.run.test_cli import run
+
+    return run("render-video", *args, check=False)
 
 
 def test_render_video_verb_on_the_demo_config(tmp_path):

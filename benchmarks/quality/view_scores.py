@@ -1,12 +1,13 @@
-"""A trained run's renders of its training views and of its test views, scored alike (docs/results.md "Where the
-blur and the streaks come from"): a render as blurred on the views it was trained on as on the held-out ones is an
-under-fit (budget, capacity); sharp on the training views and blurred on the others is geometry. Each view's streak
-index (`benchmarks.quality.streak_index`: the render's row / column roughness ratio over the photo's; 1: none) is
-given too, so that streaks can be judged on validation views. With `--spread`, also how each view's rays spread their
-weight along the ray: the weighted standard deviation of the fine samples' NDC t (a uniform fog over [0, 1): 0.29; an
-opaque surface: about 0), the share of the weight farther than 0.05 in NDC t from the ray's median, and the
-footprint in pixels across and down the image (`ray_spread`). With `--surface`, each view is also scored rendered
-with the colour at the median of each ray's weights (`surface_render`): what the picture would be without that blur.
+"""A trained run's renders of its training views and of its test views, scored alike (docs/results.md "Where the blur
+and the streaks come from"): a render as blurred on the views it was trained on as on the held-out ones is an under-fit
+(budget, capacity); sharp on the training views and blurred on the others is geometry. Each view's streak index
+(`benchmarks.quality.streak_index`: the render's row / column roughness ratio over the photo's; 1: none), and its depth
+map's (`depth_streak`), are given too, so that streaks can be judged on validation views. With `--spread`, also how each
+view's rays spread their weight along the ray: the weighted standard deviation of the fine samples' NDC t (a uniform fog
+over [0, 1): 0.29; an opaque surface: about 0), the share of the weight farther than 0.05 in NDC t from the ray's
+median, and the footprint in pixels across and down the image (`ray_spread`). With `--surface`, each view is also scored
+rendered with the colour at the median of each ray's weights (`surface_render`): what the picture would be without that
+blur.
 
     python -m benchmarks.quality.view_scores runs/grid/fern_seed0_simplerf [--factor 4] [--frames 6,13,16] [--spread] \
         [--surface] [--out DIR] [-- CLI overrides]
@@ -110,17 +111,18 @@ def main() -> None:
         args.out.mkdir(parents=True, exist_ok=True)
     per_frame = {}
     for frame in Frames(data.scene.views, data.near, frames):
+        with torch.no_grad():
+            render = model.render_frame(frame)
+        rgb, depth = render.rgb.clamp(0, 1), render.depth
         if args.surface:
             rgb, surface = (x.clamp(0, 1) for x in surface_render(model, frame, model.hparams.chunk))
-        else:
-            with torch.no_grad():
-                rgb = model.render_frame(frame).rgb.clamp(0, 1)
         photo = frame.rgb.reshape(frame.height, frame.width, 3)
         photo_ratio = axis_ratio(to_uint8(photo.numpy()))  # the streak index's reference
         kind = "train" if frame.index in split.train else "test" if frame.index in split.test else "validation"
         scores = {"kind": kind, "psnr": psnr(rgb[None], photo[None]).item(),
                   "lpips": lpips(rgb[None], photo[None], net).item(),
-                  "streak": axis_ratio(to_uint8(rgb.numpy())) / photo_ratio}
+                  "streak": axis_ratio(to_uint8(rgb.numpy())) / photo_ratio,
+                  "depth_streak": axis_ratio(depth.numpy()) / photo_ratio}
         if args.surface:
             scores |= {"surface_psnr": psnr(surface[None], photo[None]).item(),
                        "surface_lpips": lpips(surface[None], photo[None], net).item(),

@@ -2,7 +2,8 @@
 
 - `RayBatch`: R rays of train pixels with their colours, views and pixels (what the reliability masks need).
 - `SparseDepthBatch`: a `RayBatch` at pixels with an SfM depth, plus the depths and their loss weights.
-- `TrainingBatch`: one iteration's random rays and, when sparse depth is on, its sparse-depth rays.
+- `UnseenPatches`: P square patches of rays from cameras no train view has (RegNeRF's unobserved viewpoints).
+- `TrainingBatch`: one iteration's random rays and, when on, its sparse-depth rays and unseen patches.
 - `Frame`: every pixel of one full frame (validation, test, predict), row-major.
 
 All are dataclasses, which Lightning moves between devices as they are.
@@ -47,11 +48,30 @@ class SparseDepthBatch(RayBatch):
 
 
 @dataclass
+class UnseenPatches:
+    """P patches of size x size rays from unseen cameras (`geometry.unseen`), each row-major (v outer, u inner), the
+    patches one after another: ray p * size^2 + i * size + j is row i, column j of patch p. No colour: no photo."""
+
+    rays: RayBundle  # [P * size * size]
+    size: int
+
+    def __len__(self) -> int:
+        return len(self.rays)
+
+    @property
+    def count(self) -> int:
+        """P, the number of patches."""
+        return len(self.rays) // self.size**2
+
+
+@dataclass
 class TrainingBatch:
-    """One training iteration: random rays, and sparse-depth rays when the data module serves them."""
+    """One training iteration: random rays, and sparse-depth rays and unseen patches when the data module serves
+    them."""
 
     random: RayBatch
     sparse: SparseDepthBatch | None = None
+    unseen: UnseenPatches | None = None
 
     @property
     def rays(self) -> RayBundle:

@@ -11,8 +11,9 @@ from dataclasses import dataclass
 import torch
 from torch.utils.data import Dataset, IterableDataset, get_worker_info
 
-from simplenerf.data.batches import Frame, RayBatch, SparseDepthBatch, TrainingBatch
-from simplenerf.geometry.rays import pixel_grid
+from simplenerf.data.batches import Frame, RayBatch, SparseDepthBatch, TrainingBatch, UnseenPatches
+from simplenerf.geometry.rays import make_rays, pixel_grid
+from simplenerf.geometry.unseen import unseen_cameras
 from simplenerf.geometry.views import Views
 
 
@@ -57,7 +58,9 @@ class RandomRays(IterableDataset):
     Epoch-style: every pixel is drawn once before the pool is reshuffled. Each distributed rank and data-loader
     worker draws from its own generator, so they see different rays. With a sparse-depth pool, every batch also
     carries `sparse_rays_per_batch` rays from it (`TrainingBatch.sparse`), drawn epoch-style as well: every SfM
-    observation once before that pool is reshuffled (batches run across reshuffles when the pool is small).
+    observation once before that pool is reshuffled (batches run across reshuffles when the pool is small). With
+    `unseen_patches`, every batch also carries that many square patches of rays from random unseen cameras
+    (`TrainingBatch.unseen`), drawn from a generator of their own, so that they leave the other rays' order as it is.
     """
 
     def __init__(
@@ -69,6 +72,9 @@ class RandomRays(IterableDataset):
         sparse: SparseDepthPool | None = None,
         sparse_rays_per_batch: int = 0,
         start_batch: int = 0,
+        unseen_patches: int = 0,
+        patch_size: int = 8,
+        unseen_spread: float = 1.0,
     ) -> None:
         """
         Args:
@@ -80,10 +86,13 @@ class RandomRays(IterableDataset):
             sparse_rays_per_batch: rays per batch from `sparse` (>= 0; 0: none).
             start_batch: batches already drawn by the run (a resume): the stream continues after them, in the order
                 the run would have drawn them.
+            unseen_patches: patches per batch from unseen cameras (>= 0; 0: none; needs at least 2 views).
+            patch_size: their side in pixels (>= 2).
+            unseen_spread: how far the unseen cameras leave the train centres' hull (`geometry.unseen`).
         """
         num_pixels = len(views) * views.height * views.width
         checks = (("rays_per_batch", rays_per_batch, 1), ("sparse_rays_per_batch", sparse_rays_per_batch, 0),
-                  ("start_batch", start_batch, 0))
+                  ("start_batch", start_batch, 0), ("unseen_patches", unseen_patches, 0), ("patch_size", patch_size, 2))
         for option, value, least in checks:
             if not isinstance(value, int) or value < least:
                 raise ValueError(f"{option} must be an integer >= {least}, got {value!r}")
@@ -94,6 +103,10 @@ class RandomRays(IterableDataset):
         if self.sparse_rays_per_batch and len(sparse) < 1:
             raise ValueError("the sparse-depth pool is empty")
         self.start_batch = start_batch
+        if unseen_patches and (len(views) < 2 or patch_size > min(views.height, views.width)):
+            raise ValueError(f"unseen patches of {patch_size} px need at least 2 train views of at least that size, "
+                             f"got {len(views)} of {views.width}x{views.height}")
+        self.unseen_patches, self.patch_size, self.unseen_spread = unseen_patches, patch_size, unseen_spread
 
     def sparse_batch(self, index: torch.Tensor) -> SparseDepthBatch:
         """The sparse-depth rays of pool entries `index` [R]."""
@@ -116,22 +129,39 @@ class RandomRays(IterableDataset):
             for start in range(0, num_pixels - self.rays_per_batch + 1, self.rays_per_batch):
                 yield order[start : start + self.rays_per_batch], None if sparse is None else next(sparse)
 
+    def _unseen(self, generator: torch.Generator) -> Iterator[UnseenPatches | None]:
+        """Endless unseen patches per batch (None when off): random cameras, each with one patch at a random place of
+        the train views' image size and intrinsics (those of the first train view)."""
+        size, (h, w) = self.patch_size, (self.views.height, self.views.width)
+        offsets = pixel_grid(size, size)  # [size^2, 2] (column, row), row-major
+        while True:
+            if not self.unseen_patches:
+                yield None
+                continue
+            c2w = unseen_cameras(self.views.c2w, self.unseen_patches, self.unseen_spread, generator)
+            corner = torch.stack([torch.randint(0, w - size + 1, (self.unseen_patches,), generator=generator),
+                                  torch.randint(0, h - size + 1, (self.unseen_patches,), generator=generator)], -1)
+            uv = (corner[:, None] + offsets[None]).reshape(-1, 2)
+            c2w = c2w.repeat_interleave(size * size, dim=0)
+            yield UnseenPatches(make_rays(self.views.intrinsics[:1], c2w, uv, w, h, self.near), size)
+
     def __iter__(self) -> Iterator[TrainingBatch]:
         worker = get_worker_info()
-        generator = torch.Generator().manual_seed(self.seed + 1000 * _rank() + (worker.id if worker else 0))
-        indices = self._indices(generator)
+        seed = self.seed + 1000 * _rank() + (worker.id if worker else 0)
+        indices = self._indices(torch.Generator().manual_seed(seed))
+        unseen = self._unseen(torch.Generator().manual_seed(seed + 500))
         # A resume continues the order: the data loader takes batches from its workers in turn, so worker w drew
         # every num_workers-th of the batches drawn so far, starting with the w-th.
         workers, index = (worker.num_workers, worker.id) if worker else (1, 0)
         for _ in range(max(0, self.start_batch - index + workers - 1) // workers):
-            next(indices)
+            next(indices), next(unseen)
         h, w = self.views.height, self.views.width
         for pixels, sparse in indices:
             view, pixel = pixels // (h * w), pixels % (h * w)
             uv = torch.stack([pixel % w, pixel // w], dim=-1)
             rgb = self.views.images[view, uv[:, 1], uv[:, 0]]
             random = RayBatch(self.views.rays(view, uv, self.near), rgb, view, uv)
-            yield TrainingBatch(random, None if sparse is None else self.sparse_batch(sparse))
+            yield TrainingBatch(random, None if sparse is None else self.sparse_batch(sparse), next(unseen))
 
 
 class Frames(Dataset):

@@ -96,6 +96,9 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
         sparse_depth_cache: str = "data/cache/sparse_depth",
         sparse_depth_weighting: bool = False,
         reference_depth_dir: str | None = None,
+        unseen_patches_per_batch: NonNegativeInt = 0,
+        unseen_patch_size: PositiveInt = 8,
+        unseen_spread: float = 1.0,
     ) -> None:
         """
         Args:
@@ -115,6 +118,12 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
             reference_depth_dir: folder of reference depth `<frame name>.npy` (camera z-depth in file units, e.g. a
                 dense NeRF's export by `simplenerf export-depth`) for depth metrics and visibility masks;
                 null: the format's own (the synthetic scene's exact depth), else no depth metrics.
+            unseen_patches_per_batch: square patches per iteration from cameras no train view has, for the depth
+                smoothness prior (`model.objective.depth_smoothness_weight`; RegNeRF's unobserved views); 0: none.
+                Not in the paper.
+            unseen_patch_size: their side in pixels (RegNeRF: 8).
+            unseen_spread: how far the unseen cameras leave the train centres' hull, in mean distances between
+                neighbouring train centres (`geometry.unseen.unseen_cameras`).
         """
         super().__init__()
         self.n_views, self.train_frames = n_views, None if train_frames is None else list(train_frames)
@@ -122,6 +131,8 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
         self.sparse_rays_per_batch, self.sparse_depth_cache = sparse_rays_per_batch, sparse_depth_cache
         self.sparse_depth_weighting = sparse_depth_weighting
         self.reference_depth_dir = reference_depth_dir
+        self.unseen_patches_per_batch, self.unseen_patch_size = unseen_patches_per_batch, unseen_patch_size
+        self.unseen_spread = unseen_spread
         self.scene: Scene | None = None
         self.sparse_depth: SparseDepthPool | None = None
 
@@ -147,6 +158,13 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
                 raise DataError(
                     f"--data.init_args.rays_per_batch: {self.rays_per_batch} is more than the {pixels} training pixels "
                     f"({len(train)} train views of {train.width}x{train.height}); use at most {pixels}"
+                )
+            size = self.unseen_patch_size
+            if self.unseen_patches_per_batch and (len(train) < 2 or size < 2 or size > min(train.height, train.width)):
+                raise DataError(
+                    f"--data.init_args.unseen_patches_per_batch: unseen patches of {size} px need at least 2 train "
+                    f"views at least that large and a size of at least 2, got {len(train)} of "
+                    f"{train.width}x{train.height}"
                 )
             images = train.images.detach().cpu().float().numpy()
             if same := near_duplicates([thumbnail(image) for image in images], list(train.names)):
@@ -200,7 +218,8 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
         trainer = self.trainer
         drawn = trainer.global_step * trainer.accumulate_grad_batches if trainer is not None else 0
         rays = RandomRays(self.train_views, self.rays_per_batch, self.near, self.seed, self.sparse_depth,
-                          self.sparse_rays_per_batch, start_batch=drawn)
+                          self.sparse_rays_per_batch, start_batch=drawn, unseen_patches=self.unseen_patches_per_batch,
+                          patch_size=self.unseen_patch_size, unseen_spread=self.unseen_spread)
         return DataLoader(rays, batch_size=None, num_workers=self.num_workers)
 
     def _frames(self, indices: list[int]) -> DataLoader:

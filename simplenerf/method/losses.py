@@ -110,3 +110,26 @@ def distortion_loss(weights: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     inter = 2.0 * (weights * (mids * before_w - before_wm)).sum(-1)
     intra = (weights**2 * lengths).sum(-1) / 3.0
     return (inter + intra).mean()
+
+
+def expected_ndc_t(weights: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """Each ray's expected NDC t, sum_i w_i t_i + (1 - sum_i w_i) * 1: the weight a ray leaves is at t = 1 (infinity
+    in NDC), so the value is in [0, 1] whatever the accumulation. [R, S] weights and t -> [R]."""
+    return (weights * t).sum(-1) + (1.0 - weights.sum(-1))
+
+
+def depth_smoothness_loss(depth: torch.Tensor, size: int) -> torch.Tensor:
+    """RegNeRF's depth smoothness (Niemeyer et al., CVPR 2022, eq. 2) on square patches of rays from unseen cameras:
+    the squared differences of neighbouring pixels' depths, down the rows and along the columns, here a mean over
+    every such pair of neighbours (RegNeRF sums them) instead of a sum. Not in the paper.
+
+    Args:
+        depth: [P * size * size] the patches' depths, each patch row-major (`data.batches.UnseenPatches`).
+        size: the patches' side.
+
+    Returns:
+        a scalar.
+    """
+    patches = depth.reshape(-1, size, size)
+    down, along = torch.diff(patches, dim=1), torch.diff(patches, dim=2)
+    return (down.square().sum() + along.square().sum()) / (down.numel() + along.numel())

@@ -18,7 +18,7 @@ from lightning.pytorch.cli import LRSchedulerCallable, OptimizerCallable
 from lightning.pytorch.strategies import DDPStrategy, ParallelStrategy
 from torch import nn
 
-from simplenerf.data.batches import Frame, RayBatch, SparseDepthBatch, TrainingBatch
+from simplenerf.data.batches import Frame, RayBatch, SparseDepthBatch, TrainingBatch, UnseenPatches
 from simplenerf.errors import SimpleNeRFError
 from simplenerf.geometry.rays import pixel_grid
 from simplenerf.geometry.views import Views
@@ -50,10 +50,12 @@ def ray_slices(n: int, size: int | None) -> list[slice]:
 @dataclass
 class Part:
     """Rays rendered and backpropagated together: some random rays, some sparse-depth rays, or (a batch in one part)
-    both, with each kind's share of the batch's rays of that kind."""
+    both, with each kind's share of the batch's rays of that kind; the batch's unseen patches, if any, are in one part
+    whole (the last one)."""
 
     random: RayBatch | None = None
     sparse: SparseDepthBatch | None = None
+    unseen: UnseenPatches | None = None
     random_share: float = 1.0
     sparse_share: float = 1.0
 
@@ -61,14 +63,16 @@ class Part:
 def batch_parts(batch: TrainingBatch, size: int | None) -> list[Part]:
     """The parts of a training batch: None, the whole batch in one part; else parts of at most `size` rays, the random
     rays first, then the sparse-depth rays (never mixed: no loss reads the colour of the sparse rays, so their parts
-    render depth only)."""
+    render depth only), then the unseen patches in a part of their own (never cut: a patch's loss reads all of it)."""
     if size is None:
-        return [Part(batch.random, batch.sparse)]
+        return [Part(batch.random, batch.sparse, batch.unseen)]
     n = len(batch.random)
     parts = [Part(random=batch.random[s], random_share=(s.stop - s.start) / n) for s in ray_slices(n, size)]
     if batch.sparse is not None:
         m = len(batch.sparse)
         parts += [Part(sparse=batch.sparse[s], sparse_share=(s.stop - s.start) / m) for s in ray_slices(m, size)]
+    if batch.unseen is not None:
+        parts.append(Part(unseen=batch.unseen))
     return parts
 
 
@@ -208,7 +212,7 @@ class SimpleNeRF(L.LightningModule):
 
     def render_part(self, part: Part) -> list[RenderedRays]:
         """A part's random and / or sparse rays rendered (a whole batch in one pass, then split; sparse rays alone:
-        depth only)."""
+        depth only), and its unseen patches (the main NeRF's depth only: no term reads more there)."""
         if part.random is not None and part.sparse is not None:
             both = self.render(part.random.rays.cat(part.sparse.rays), randomized=True, skip=self.retired)
             random, sparse = both.split(len(part.random))
@@ -223,6 +227,10 @@ class SimpleNeRF(L.LightningModule):
             rendered.append(RenderedRays("random", part.random, random, part.random_share, errors))
         if sparse is not None:
             rendered.append(RenderedRays("sparse", part.sparse, sparse, part.sparse_share))
+        if part.unseen is not None:
+            everything = frozenset(aug.name for aug in self.augmentations)
+            unseen = self.render(part.unseen.rays, randomized=True, color=False, skip=everything)
+            rendered.append(RenderedRays("unseen", part.unseen, unseen, 1.0))
         return rendered
 
     def average_gradients(self) -> None:

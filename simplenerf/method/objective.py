@@ -23,12 +23,14 @@ from typing import Literal
 
 import torch
 
-from simplenerf.data.batches import RayBatch, SparseDepthBatch
+from simplenerf.data.batches import RayBatch, SparseDepthBatch, UnseenPatches
 from simplenerf.method.losses import (
     coarse_fine_sparse_loss,
     color_loss,
     color_spread_loss,
+    depth_smoothness_loss,
     distortion_loss,
+    expected_ndc_t,
     mass_concentration_loss,
     sparse_depth_loss,
 )
@@ -43,7 +45,7 @@ from simplenerf.model.fields import Field
 from simplenerf.model.nerf import NeRFOutputs
 from simplenerf.model.rendering import RenderOutputs
 
-RayKind = Literal["random", "sparse"]
+RayKind = Literal["random", "sparse", "unseen"]
 # Names of renders and terms that an augmentation may not take.
 RESERVED_NAMES = ("coarse", "fine", "color", "sparse_depth", "coarse_sparse_depth", "cfc")
 
@@ -92,6 +94,12 @@ class Objective:
             "fine_color_spread", each scheduled on its own); 0: off. Not in the paper; against renders whose colour is a
             blend along the ray, which smear from other views (docs/results.md "Where the blur and the streaks come
             from", 13).
+        depth_smoothness_weight: weight of RegNeRF's depth smoothness (`losses.depth_smoothness_loss`) on the expected
+            NDC t of the main coarse and fine renders of patches from unseen cameras (the terms
+            "coarse_depth_smoothness" and "fine_depth_smoothness", each scheduled on its own; the data module's
+            `unseen_patches_per_batch` serves the patches); 0: off. Not in the paper; against depth that is free
+            wherever the photos leave it so (plain walls), which other views see as streaks (docs/results.md
+            "Where the blur and the streaks come from", 24).
         terms: further terms (`Term` subclasses by `class_path`, e.g. a user's own), summed after the built-in ones;
             each is logged and scheduled by its `name` like them.
     """
@@ -110,6 +118,7 @@ class Objective:
     concentration_bins: int = 5
     distortion_weight: float = 0.0
     color_spread_weight: float = 0.0
+    depth_smoothness_weight: float = 0.0
     terms: list[Term] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -142,7 +151,7 @@ class RenderedRays:
     """Rays of one kind from one part of a training batch, with their renders: what a ray term reads."""
 
     kind: RayKind
-    rays: RayBatch | SparseDepthBatch
+    rays: RayBatch | SparseDepthBatch | UnseenPatches
     renders: Renders
     share: float  # this part's fraction of the batch's rays of this kind
     errors: ReprojectionErrors | None = None  # random rays: their patch reprojection errors, shared by the masks
@@ -272,6 +281,21 @@ class ColorSpreadTerm(Term):
         return TermValue(color_spread_loss(render.weights, render.sample_rgb, render.rgb))
 
 
+class DepthSmoothnessTerm(Term):
+    """RegNeRF's depth smoothness of a main render's expected NDC t (`losses.expected_ndc_t`,
+    `losses.depth_smoothness_loss`), on the patches from unseen cameras."""
+
+    def __init__(self, stage: Literal["coarse", "fine"], weight: float) -> None:
+        super().__init__(f"{stage}_depth_smoothness", weight, ("unseen",))
+        self.stage = stage
+
+    def value(self, rendered: RenderedRays) -> TermValue:
+        main = rendered.renders.main
+        samples = main.coarse_samples if self.stage == "coarse" else main.fine_samples
+        depth = expected_ndc_t(rendered.renders[self.stage].weights, samples.t)
+        return TermValue(depth_smoothness_loss(depth, rendered.rays.size))
+
+
 class RegularizerTerm(Term):
     """A field's own regulariser (`Field.regularizers`, e.g. a grid's total variation), once per step."""
 
@@ -288,7 +312,8 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
     coarse), one masked depth term per augmentation
     (named after it), Simple-RF's mass concentration of those that have one ("<name>_concentration"), the distortion
     of the main renders ("coarse_distortion", "fine_distortion"), the spread of their colours ("coarse_color_spread",
-    "fine_color_spread"), L_cfc ("cfc"), then each field's regularisers
+    "fine_color_spread"), their depth smoothness on unseen patches ("coarse_depth_smoothness",
+    "fine_depth_smoothness"), L_cfc ("cfc"), then each field's regularisers
     ("<regulariser>_<field>", e.g. "tv_fine"), then `objective.terms`.
 
     Args:
@@ -306,6 +331,7 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
     terms.append(ConcentrationTerm("fine", objective.fine_concentration_weight, objective.concentration_bins))
     terms += [DistortionTerm(stage, objective.distortion_weight) for stage in ("coarse", "fine")]
     terms += [ColorSpreadTerm(stage, objective.color_spread_weight) for stage in ("coarse", "fine")]
+    terms += [DepthSmoothnessTerm(stage, objective.depth_smoothness_weight) for stage in ("coarse", "fine")]
     if objective.coarse_fine_mask is not None:
         cfc_depth = depth | {"supervision": objective.coarse_fine_supervision or objective.supervision}
         terms.append(MaskedDepthTerm("cfc", objective.coarse_fine_weight, objective.coarse_fine_mask, "coarse", "fine",
@@ -334,7 +360,7 @@ def part_loss(terms: Mapping[str, Term], parts: Sequence[RenderedRays], regulari
     active = [t for t in terms.values() if t.weight != 0]
     kind_losses, values, masks = [], {}, {}
     for rendered in parts:
-        loss = torch.zeros((), device=rendered.rays.rgb.device)
+        loss = torch.zeros((), device=rendered.rays.rays.origins.device)
         for term in (t for t in active if rendered.kind in t.reads):
             result = term.value(rendered)
             value = rendered.share * result.value

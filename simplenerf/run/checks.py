@@ -205,6 +205,20 @@ def check_model_meets_data(model: SimpleNeRF, n_train: int | None, stage: str) -
         )
 
 
+def check_unseen_patches(model: SimpleNeRF, callbacks: list, per_batch: int) -> None:
+    """DataError when a term that reads patches from unseen cameras (RegNeRF's depth smoothness) has a weight, or a
+    schedule (a callback's `schedules`, `LossWeightSchedule`) gives it one, and the data serves none (`per_batch` 0):
+    it would never be computed."""
+    if per_batch:
+        return
+    schedules = [getattr(c, "schedules", {}) for c in callbacks]
+    used = [name for name, term in model.terms.items() if "unseen" in term.reads and (
+        term.weight != 0 or any(weight != 0 for s in schedules for _, weight in s.get(name, ())))]
+    if used:
+        raise DataError(f"the loss terms {', '.join(used)} read patches from unseen cameras, but the data serves none: "
+                        "set --data.init_args.unseen_patches_per_batch (e.g. 4)")
+
+
 # Trainer options Lightning applies only under automatic optimisation: SimpleNeRF optimises manually (one update per
 # step, `SimpleNeRF.training_step`), so they would change nothing (or stop inside Lightning): refused up front.
 MANUAL_OPTIMISATION_IGNORES = {"gradient_clip_val": None, "gradient_clip_algorithm": None, "accumulate_grad_batches": 1}

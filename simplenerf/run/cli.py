@@ -51,6 +51,7 @@ from simplenerf.run.checks import (
     check_model_meets_data,
     check_optimisation,
     check_trainer_options,
+    check_unseen_patches,
     check_writable,
     kept_checkpoints,
     preflight_inputs,
@@ -238,6 +239,7 @@ class SimpleNeRFCLI(LightningCLI):
             check_optimisation(self.model, model_config.as_dict() if hasattr(model_config, "as_dict") else None)
         if data is not None and subcommand == "fit":
             check_model_meets_data(self.model, len(data.train_views), subcommand)
+            check_unseen_patches(self.model, self.trainer.callbacks, data.unseen_patches_per_batch)
             self.model.set_train_views(data.train_views)  # what the reliability masks reproject into
         config = self.config_init[subcommand]
         folder = self.checkpoint_folder()

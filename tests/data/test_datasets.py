@@ -58,3 +58,42 @@ def test_random_rays_refuse_counts_that_would_spin(synthetic_scene):
     for rays_per_batch in (-64, 0):
         with pytest.raises(ValueError, match="rays_per_batch must be an integer >= 1"):
             RandomRays(views, rays_per_batch, near=1.0)
+
+
+def test_unseen_patches_are_squares_of_one_camera_each_and_leave_the_other_rays_as_they_were(synthetic_scene):
+    """Each batch carries `unseen_patches` patches of size x size rays, each from one camera (one origin), through a
+    square of neighbouring pixels (row-major); the random rays are those drawn without them, and a resume continues
+    the patches' stream too."""
+    import itertools
+
+    import pytest
+
+    from simplenerf.data.datasets import RandomRays
+    from simplenerf.data.llff import load_llff_scene, subset
+    from simplenerf.geometry.unseen import mean_rotation
+
+    scene = load_llff_scene(synthetic_scene, factor=1, n_views=2)
+    views = subset(scene.views, scene.split.train)
+
+    def batches(start: int = 0, **unseen) -> list:
+        return list(itertools.islice(iter(RandomRays(views, 256, near=1.0, seed=3, start_batch=start, **unseen)), 6))
+
+    plain, with_patches = batches(), batches(unseen_patches=3, patch_size=4)
+    assert all(b.unseen is None for b in plain)
+    assert all(torch.equal(a.random.uv, b.random.uv) for a, b in zip(plain, with_patches, strict=True))
+    patches = with_patches[0].unseen
+    assert patches.size == 4 and patches.count == 3 and len(patches) == 48
+    origins = patches.rays.origins.reshape(3, 16, 3)
+    assert torch.equal(origins, origins[:, :1].expand(3, 16, 3))  # one camera per patch
+    assert not torch.allclose(origins[0, 0], origins[1, 0])  # different cameras
+    # Neighbouring pixels of one camera looking along the train cameras' mean axis: in its frame the directions step
+    # by 1 / fx along a row and by -1 / fy down a column, at z = -1.
+    fx, fy = views.intrinsics[0, 0, 0], views.intrinsics[0, 1, 1]
+    camera = patches.rays.directions.reshape(3, 4, 4, 3)[0] @ mean_rotation(views.c2w)  # R^T d, as rows
+    assert torch.allclose(camera[..., 2], torch.full((4, 4), -1.0), atol=1e-5)
+    assert torch.allclose(torch.diff(camera[..., 0], dim=1), (1 / fx).expand(4, 3), atol=1e-5)
+    assert torch.allclose(torch.diff(camera[..., 1], dim=0), (-1 / fy).expand(3, 4), atol=1e-5)
+    resumed = batches(start=2, unseen_patches=3, patch_size=4)
+    assert torch.equal(resumed[0].unseen.rays.origins, with_patches[2].unseen.rays.origins)
+    with pytest.raises(ValueError, match="unseen patches of 9 px need at least 2 train views"):
+        RandomRays(subset(views, [0]), 64, near=1.0, unseen_patches=1, patch_size=9)

@@ -185,3 +185,23 @@ def test_the_objective_puts_the_color_spread_on_both_main_renders():
                                color_spread_loss(fine.weights, fine.sample_rgb, fine.rgb))
     torch.testing.assert_close(part.loss, part.values["color"] + 0.1 * (part.values["coarse_color_spread"]
                                                                         + part.values["fine_color_spread"]))
+
+
+def test_expected_ndc_t_puts_the_weight_a_ray_leaves_at_infinity():
+    from simplenerf.method.losses import expected_ndc_t
+
+    weights, t = torch.tensor([[0.5, 0.25], [0.0, 0.0]]), torch.tensor([[0.2, 0.6], [0.2, 0.6]])
+    assert torch.allclose(expected_ndc_t(weights, t), torch.tensor([0.5 * 0.2 + 0.25 * 0.6 + 0.25, 1.0]))
+
+
+def test_depth_smoothness_is_the_mean_squared_neighbour_difference_of_each_patch():
+    from simplenerf.method.losses import depth_smoothness_loss
+
+    flat, bands, steps = [[0.5, 0.5], [0.5, 0.5]], [[0.0, 0.0], [1.0, 1.0]], [[0.0, 1.0], [0.0, 1.0]]
+    assert depth_smoothness_loss(torch.tensor(flat).flatten(), 2).item() == 0.0
+    # Two 2 x 2 patches, each with 4 neighbour pairs: bands differ down both columns, steps along both rows.
+    assert depth_smoothness_loss(torch.tensor([bands, steps]).flatten(), 2).item() == pytest.approx(4 / 8)
+    # 3 x 3 with one pixel raised by 2: its 4 neighbour pairs differ by 2, out of 12 pairs.
+    patch = torch.zeros(3, 3)
+    patch[1, 1] = 2.0
+    assert depth_smoothness_loss(patch.flatten(), 3).item() == pytest.approx(4 * 4 / 12)

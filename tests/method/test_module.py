@@ -247,8 +247,8 @@ def test_a_schedule_naming_an_unknown_loss_is_one_clear_error():
 
     model = simplenerf_module()
     LossWeightSchedule({"points": [(0, 0.0)], "cfc": [(0, 0.0)]}).check_model(model)  # known names pass
-    known = ("cfc, coarse_color_spread, coarse_distortion, coarse_sparse_depth, color, fine_color_spread, "
-             "fine_concentration, fine_distortion, points")
+    known = ("cfc, coarse_color_spread, coarse_depth_smoothness, coarse_distortion, coarse_sparse_depth, color, "
+             "fine_color_spread, fine_concentration, fine_depth_smoothness, fine_distortion, points")
     with pytest.raises(SimpleNeRFError, match=rf"schedules 'point', but the model's losses are {known}"):
         LossWeightSchedule({"point": [(0, 0.0)]}).check_model(model)
 
@@ -399,3 +399,51 @@ def test_a_part_whose_terms_are_all_off_is_not_backpropagated(batch, monkeypatch
                        objective=Objective(sparse_depth_weight=0.0), rays_per_backward=1000)  # random, then sparse
     loss, logged = step(model, batch, monkeypatch)
     assert "train/loss_sparse_depth" not in logged and torch.allclose(loss, logged["train/loss_color"])
+
+
+def test_depth_smoothness_reads_the_unseen_patches_main_depth_only(datamodule, batch, monkeypatch):
+    """With `depth_smoothness_weight`, the coarse and fine terms are RegNeRF's smoothness of the expected NDC t of the
+    main renders of the batch's unseen patches, rendered without colour and without the augmentations, in the step's
+    loss with their weight; in a part of their own when the batch is cut into parts."""
+    from dataclasses import replace
+
+    from simplenerf.data.datasets import RandomRays
+    from simplenerf.method.losses import depth_smoothness_loss, expected_ndc_t
+
+    unseen = next(iter(RandomRays(datamodule.train_views, 64, near=1.0, unseen_patches=2, patch_size=4))).unseen
+    with_patches = replace(batch, unseen=unseen)
+    model = simplenerf_module(rays_per_backward=40)
+    for name in ("points", "views", "cfc"):
+        model.terms[name].weight = 0.0
+    model.terms["coarse_depth_smoothness"].weight = model.terms["fine_depth_smoothness"].weight = 0.5
+    rendered = []
+    original = model.render_part
+    monkeypatch.setattr(model, "render_part", lambda part: rendered.append(original(part)) or rendered[-1])
+    loss, logged = step(model, with_patches, monkeypatch)
+    assert [r.kind for r in rendered[-1]] == ["unseen"] and len(rendered) == 2 + 1 + 1  # 64 random, 16 sparse
+    patches = rendered[-1][0]
+    assert patches.renders.augmented == {} and patches.renders.main.fine.rgb is None
+    for stage in ("coarse", "fine"):
+        samples = getattr(patches.renders.main, f"{stage}_samples")
+        depth = expected_ndc_t(patches.renders[stage].weights, samples.t)
+        assert torch.allclose(logged[f"train/loss_{stage}_depth_smoothness"], depth_smoothness_loss(depth, 4).detach())
+    smoothness = logged["train/loss_coarse_depth_smoothness"] + logged["train/loss_fine_depth_smoothness"]
+    assert smoothness > 0
+    assert torch.allclose(loss, logged["train/loss_color"] + 0.1 * logged["train/loss_sparse_depth"] + 0.5 * smoothness)
+
+
+def test_a_depth_smoothness_weight_without_unseen_patches_is_refused():
+    from simplenerf.errors import DataError
+    from simplenerf.run.callbacks import LossWeightSchedule
+    from simplenerf.run.checks import check_unseen_patches
+
+    model = simplenerf_module()
+    check_unseen_patches(model, [], 0)  # off: nothing to serve
+    scheduled = LossWeightSchedule({"fine_depth_smoothness": [(0, 0.0), (100, 0.1)]})
+    with pytest.raises(DataError, match="fine_depth_smoothness read patches from unseen cameras.*"
+                                        "unseen_patches_per_batch"):
+        check_unseen_patches(model, [scheduled], 0)
+    check_unseen_patches(model, [scheduled], 4)
+    model.terms["coarse_depth_smoothness"].weight = 0.1
+    with pytest.raises(DataError, match="the loss terms coarse_depth_smoothness read"):
+        check_unseen_patches(model, [], 0)

@@ -425,3 +425,19 @@ def test_explicit_train_frames_without_test_frames_render_instead_of_scoring(tmp
     depth_files = sorted(p.name for p in (out / "depth").glob("*.npy"))
     assert len(depth_files) == 3 and (out / "points.ply").is_file() and (out / "video_spiral.mp4").stat().st_size > 0
     assert not (out / "metrics.csv").exists()
+
+
+def test_depth_smoothness_fits_with_unseen_patches_and_is_refused_without(tmp_path):
+    """RegNeRF's prior end to end: the data module serves the patches, the terms are logged; a weight without
+    patches stops before the fit with one line naming the option to set."""
+    smoothness = ["--model.objective.depth_smoothness_weight", "0.5"]
+    refused = run("fit", *run_args(tmp_path), *smoothness, "--trainer.max_steps", "1", check=False)
+    assert refused.returncode != 0 and not (tmp_path / "run/checkpoints").exists()
+    assert "coarse_depth_smoothness, fine_depth_smoothness read patches from unseen cameras" in refused.stderr
+    assert "unseen_patches_per_batch" in refused.stderr and "Traceback" not in refused.stderr
+    run("fit", *run_args(tmp_path), *smoothness, "--data.init_args.unseen_patches_per_batch", "2",
+        "--data.init_args.unseen_patch_size", "4", "--trainer.max_steps", "2", "--trainer.log_every_n_steps", "1")
+    history = run("run-history", str(tmp_path / "run"), "--keys", "train/loss_(coarse|fine)_depth_smoothness")
+    rows = list(csv.DictReader(history.stdout.splitlines()))
+    assert len(rows) == 2
+    assert all(float(row[f"train/loss_{stage}_depth_smoothness"]) > 0 for row in rows for stage in ("coarse", "fine"))

@@ -52,6 +52,15 @@ def shuffled_pool(size: int, batch: int, generator: torch.Generator) -> Iterator
         buffer = buffer[batch:]
 
 
+def unseen_patch_problem(views: Views, size: int) -> str | None:
+    """Why `views` cannot give unseen patches of `size` pixels (they need two views to place cameras around, and fit
+    the image), or None."""
+    if len(views) >= 2 and 2 <= size <= min(views.height, views.width):
+        return None
+    return (f"unseen patches of {size} px need at least 2 train views at least that large and a size of at least 2, "
+            f"got {len(views)} of {views.width}x{views.height}")
+
+
 class RandomRays(IterableDataset):
     """An endless stream of batches of random training rays from a shuffled pool of all training pixels.
 
@@ -103,9 +112,8 @@ class RandomRays(IterableDataset):
         if self.sparse_rays_per_batch and len(sparse) < 1:
             raise ValueError("the sparse-depth pool is empty")
         self.start_batch = start_batch
-        if unseen_patches and (len(views) < 2 or patch_size > min(views.height, views.width)):
-            raise ValueError(f"unseen patches of {patch_size} px need at least 2 train views of at least that size, "
-                             f"got {len(views)} of {views.width}x{views.height}")
+        if unseen_patches and (problem := unseen_patch_problem(views, patch_size)):
+            raise ValueError(problem)
         self.unseen_patches, self.patch_size, self.unseen_spread = unseen_patches, patch_size, unseen_spread
 
     def sparse_batch(self, index: torch.Tensor) -> SparseDepthBatch:

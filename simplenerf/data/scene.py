@@ -17,7 +17,7 @@ import torch
 from jsonargparse.typing import NonNegativeInt, PositiveInt
 from torch.utils.data import DataLoader
 
-from simplenerf.data.datasets import Frames, RandomRays, SparseDepthPool
+from simplenerf.data.datasets import Frames, RandomRays, SparseDepthPool, unseen_patch_problem
 from simplenerf.errors import DataError
 from simplenerf.geometry.trajectories import TrajectoryKind, llff_spiral, recorded_trajectory
 from simplenerf.geometry.views import Views
@@ -159,13 +159,8 @@ class SceneDataModule(L.LightningDataModule, abc.ABC):
                     f"--data.init_args.rays_per_batch: {self.rays_per_batch} is more than the {pixels} training pixels "
                     f"({len(train)} train views of {train.width}x{train.height}); use at most {pixels}"
                 )
-            size = self.unseen_patch_size
-            if self.unseen_patches_per_batch and (len(train) < 2 or size < 2 or size > min(train.height, train.width)):
-                raise DataError(
-                    f"--data.init_args.unseen_patches_per_batch: unseen patches of {size} px need at least 2 train "
-                    f"views at least that large and a size of at least 2, got {len(train)} of "
-                    f"{train.width}x{train.height}"
-                )
+            if self.unseen_patches_per_batch and (problem := unseen_patch_problem(train, self.unseen_patch_size)):
+                raise DataError(f"--data.init_args.unseen_patches_per_batch: {problem}")
             images = train.images.detach().cpu().float().numpy()
             if same := near_duplicates([thumbnail(image) for image in images], list(train.names)):
                 raise DataError(

@@ -70,8 +70,7 @@ class Augmentation(nn.Module):
 
     def render(self, nerf: NeRF, main: NeRFOutputs, randomized: bool) -> RenderOutputs:
         """Renders the augmentation along the rays of `main`, at the main model's samples of its stage."""
-        samples = main.coarse_samples if self.stage == "coarse" else main.fine_samples
-        return nerf.render(self.field, samples, randomized, min_ndc_z=self.min_ndc_z)
+        return nerf.render(self.field, main.samples(self.stage), randomized, min_ndc_z=self.min_ndc_z)
 
     def main_output(self, main: NeRFOutputs) -> RenderOutputs:
         """The main model's render this augmentation is tied to."""

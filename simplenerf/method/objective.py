@@ -263,8 +263,7 @@ class DistortionTerm(Term):
         self.stage = stage
 
     def value(self, rendered: RenderedRays) -> TermValue:
-        main = rendered.renders.main
-        samples = main.coarse_samples if self.stage == "coarse" else main.fine_samples
+        samples = rendered.renders.main.samples(self.stage)
         return TermValue(distortion_loss(rendered.renders[self.stage].weights, samples.t))
 
 
@@ -290,8 +289,7 @@ class DepthSmoothnessTerm(Term):
         self.stage = stage
 
     def value(self, rendered: RenderedRays) -> TermValue:
-        main = rendered.renders.main
-        samples = main.coarse_samples if self.stage == "coarse" else main.fine_samples
+        samples = rendered.renders.main.samples(self.stage)
         depth = expected_ndc_t(rendered.renders[self.stage].weights, samples.t)
         return TermValue(depth_smoothness_loss(depth, rendered.rays.size))
 

@@ -31,6 +31,10 @@ class NeRFOutputs:
     coarse_samples: Samples
     fine_samples: Samples
 
+    def samples(self, stage: str) -> Samples:
+        """The samples of a stage: "coarse" or "fine"."""
+        return self.coarse_samples if stage == "coarse" else self.fine_samples
+
     def split(self, n: int) -> tuple[NeRFOutputs, NeRFOutputs]:
         """The outputs of the first n rays and of the rest (e.g. a training batch's random and sparse-depth rays)."""
         parts = [self.coarse, self.fine, self.coarse_samples, self.fine_samples]

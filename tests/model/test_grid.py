@@ -310,11 +310,12 @@ def test_grid_dsnerf_configs_are_the_simplenerf_ones_without_the_simplifiers(sim
     b = yaml.safe_load((GRID / f"{baseline}.yaml").read_text())
     assert len(a["model"]["augmentations"]) == 2 and b["model"]["augmentations"] == []
     assert b["model"]["objective"]["coarse_fine_mask"] is None
-    # the baseline schedules what both have (the distortion loss, the colour spread), exactly as SimpleNeRF does
+    # the baseline schedules what both have (the distortion loss, the colour spread, the depth smoothness), exactly as
+    # SimpleNeRF does
     schedules_a = a["trainer"]["callbacks"][0]["init_args"]["schedules"]
     schedules_b = {name: points for callback in b["trainer"].get("callbacks", [])
                    for name, points in callback["init_args"]["schedules"].items()}
-    shared = ("_distortion", "_color_spread")
+    shared = ("_distortion", "_color_spread", "_depth_smoothness")
     assert schedules_b == {name: points for name, points in schedules_a.items() if name.endswith(shared)}
     for key in ("max_steps", "val_check_interval", "limit_val_batches"):
         assert a["trainer"].get(key) == b["trainer"].get(key)

@@ -211,9 +211,9 @@ def check_unseen_patches(model: SimpleNeRF, callbacks: list, per_batch: int) -> 
     it would never be computed."""
     if per_batch:
         return
-    schedules = [getattr(c, "schedules", {}) for c in callbacks]
+    schedules = [c for c in callbacks if hasattr(c, "zero_from")]  # LossWeightSchedule's rule for "0 from a step on"
     used = [name for name, term in model.terms.items() if "unseen" in term.reads and (
-        term.weight != 0 or any(weight != 0 for s in schedules for _, weight in s.get(name, ())))]
+        term.weight != 0 or not all(s.zero_from(name, -1, 0.0) for s in schedules))]
     if used:
         raise DataError(f"the loss terms {', '.join(used)} read patches from unseen cameras, but the data serves none: "
                         "set --data.init_args.unseen_patches_per_batch (e.g. 4)")

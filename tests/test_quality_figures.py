@@ -144,14 +144,16 @@ def test_surface_render_takes_the_colour_at_the_median_of_the_weights():
     weights[:3, 3] = 1.0  # a surface at t 0.3
     weights[3:] = 0.05  # a fog: the median of its weights at t 0.5
     outputs = SimpleNamespace(fine_samples=SimpleNamespace(t=t),
-                              fine=SimpleNamespace(weights=weights, rgb=torch.full((6, 3), 0.7)))
+                              fine=SimpleNamespace(weights=weights, rgb=torch.full((6, 3), 0.7),
+                                                   depth=torch.arange(6.0)))
 
     class Nerf:  # the field's colour is t in every channel
         fine = None
 
         def __call__(self, rays, randomized):
             return SimpleNamespace(fine_samples=SimpleNamespace(t=t[rays]),
-                                   fine=SimpleNamespace(weights=weights[rays], rgb=outputs.fine.rgb[rays]))
+                                   fine=SimpleNamespace(weights=weights[rays], rgb=outputs.fine.rgb[rays],
+                                                        depth=outputs.fine.depth[rays]))
 
         def make_samples(self, rays, t_points):
             return t_points
@@ -160,8 +162,9 @@ def test_surface_render_takes_the_colour_at_the_median_of_the_weights():
             return SimpleNamespace(rgb=samples[..., None].expand(*samples.shape, 3))
 
     frame = SimpleNamespace(rays=torch.arange(6), height=2, width=3)
-    composite, surface = surface_render(SimpleNamespace(nerf=Nerf()), frame, chunk=4)  # chunks of 4 and 2 rays
+    composite, surface, depth = surface_render(SimpleNamespace(nerf=Nerf()), frame, chunk=4)  # chunks of 4 and 2 rays
     assert composite.shape == surface.shape == (2, 3, 3) and bool((composite == 0.7).all())
+    assert torch.equal(depth, torch.arange(6.0).reshape(2, 3))  # the render's own depth, the chunks in order
     assert torch.allclose(surface[0], torch.full((3, 3), 0.3)) and torch.allclose(surface[1], torch.full((3, 3), 0.5))
 
 

@@ -65,12 +65,13 @@ def ray_spread(model, frame, every: int = 37) -> dict[str, float]:
             "footprint_y_px": float(weighted_std(positions[..., 1]).mean()) * frame.height / 2}
 
 
-def surface_render(model, frame, chunk: int = 2048) -> tuple[torch.Tensor, torch.Tensor]:
-    """The frame rendered as trained ([H, W, 3]), and with each ray's colour taken at one point: the fine field's
-    colour at the median of the ray's fine weights ([H, W, 3]). The two differ by what the weight spread along the
+def surface_render(model, frame, chunk: int = 2048) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The frame rendered as trained ([H, W, 3]), with each ray's colour taken at one point: the fine field's
+    colour at the median of the ray's fine weights ([H, W, 3]), and the fine depth as rendered ([H, W]; the frame is
+    rendered once for all three). The two differ by what the weight spread along the
     rays does to the picture (from a camera moved sideways, a horizontal blur the width of the rays' footprint); where
     the median is on the surface, the second is that surface's colour without the blur."""
-    composite, surface, nerf = [], [], model.nerf
+    composite, surface, depth, nerf = [], [], [], model.nerf
     with torch.no_grad():
         for start in range(0, len(frame.rays), chunk):
             rays = frame.rays[start : start + chunk]
@@ -78,9 +79,10 @@ def surface_render(model, frame, chunk: int = 2048) -> tuple[torch.Tensor, torch
             t, w = out.fine_samples.t, out.fine.weights
             median = weight_median(t, w / w.sum(-1, keepdim=True).clamp_min(1e-6))
             composite.append(out.fine.rgb)
+            depth.append(out.fine.depth)
             surface.append(nerf.evaluate(nerf.fine, nerf.make_samples(rays, median)).rgb[:, 0])
     shape = (frame.height, frame.width, 3)
-    return torch.cat(composite).reshape(shape), torch.cat(surface).reshape(shape)
+    return torch.cat(composite).reshape(shape), torch.cat(surface).reshape(shape), torch.cat(depth).reshape(shape[:2])
 
 
 def main() -> None:
@@ -111,11 +113,13 @@ def main() -> None:
         args.out.mkdir(parents=True, exist_ok=True)
     per_frame = {}
     for frame in Frames(data.scene.views, data.near, frames):
-        with torch.no_grad():
-            render = model.render_frame(frame)
-        rgb, depth = render.rgb.clamp(0, 1), render.depth
         if args.surface:
-            rgb, surface = (x.clamp(0, 1) for x in surface_render(model, frame, model.hparams.chunk))
+            rgb, surface, depth = surface_render(model, frame, model.hparams.chunk)
+            rgb, surface = rgb.clamp(0, 1), surface.clamp(0, 1)
+        else:
+            with torch.no_grad():
+                render = model.render_frame(frame)
+            rgb, depth = render.rgb.clamp(0, 1), render.depth
         photo = frame.rgb.reshape(frame.height, frame.width, 3)
         photo_ratio = axis_ratio(to_uint8(photo.numpy()))  # the streak index's reference
         kind = "train" if frame.index in split.train else "test" if frame.index in split.test else "validation"

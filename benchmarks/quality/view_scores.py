@@ -67,10 +67,10 @@ def ray_spread(model, frame, every: int = 37) -> dict[str, float]:
 
 def surface_render(model, frame, chunk: int = 2048) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The frame rendered as trained ([H, W, 3]), with each ray's colour taken at one point: the fine field's
-    colour at the median of the ray's fine weights ([H, W, 3]), and the fine depth as rendered ([H, W]; the frame is
-    rendered once for all three). The two differ by what the weight spread along the
-    rays does to the picture (from a camera moved sideways, a horizontal blur the width of the rays' footprint); where
-    the median is on the surface, the second is that surface's colour without the blur."""
+    colour at the median of the ray's fine weights ([H, W, 3]), and the fine depth as rendered ([H, W]; one render
+    gives all three). The first two differ by what the weight spread along the rays does to the picture (from a
+    camera moved sideways, a horizontal blur the width of the rays' footprint); where the median is on the surface,
+    the second is that surface's colour without the blur."""
     composite, surface, depth, nerf = [], [], [], model.nerf
     with torch.no_grad():
         for start in range(0, len(frame.rays), chunk):

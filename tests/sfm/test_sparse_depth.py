@@ -252,11 +252,35 @@ def test_only_essential_matrix_poses_are_compared_with_the_given_poses():
     """A planar pair's relative pose comes from an ambiguous homography decomposition: no pose warning from it."""
     from types import SimpleNamespace
 
-    from simplenerf.sfm.known_poses import comparable
+    from simplenerf.sfm.known_poses import MIN_POSE_INLIERS, comparable
 
     config = pycolmap.TwoViewGeometryConfiguration
-    pair = dict(cam2_from_cam1=pycolmap.Rigid3d(), inlier_matches=np.zeros((10, 2)))
+    pair = dict(cam2_from_cam1=pycolmap.Rigid3d(), inlier_matches=np.zeros((MIN_POSE_INLIERS, 2)))
     assert comparable(SimpleNamespace(config=config.CALIBRATED, **pair))
+    assert comparable(SimpleNamespace(config=config.UNCALIBRATED, **pair))
     assert not comparable(SimpleNamespace(config=config.PLANAR, **pair))
     assert not comparable(SimpleNamespace(config=config.PLANAR_OR_PANORAMIC, **pair))
     assert not comparable(SimpleNamespace(config=config.CALIBRATED, cam2_from_cam1=None, inlier_matches=[]))
+    # Too few matches for COLMAP's pose to judge the given one (horns' pair of 16 matches, 10.9 deg off): no warning.
+    few = dict(cam2_from_cam1=pycolmap.Rigid3d(), inlier_matches=np.zeros((MIN_POSE_INLIERS - 1, 2)))
+    assert not comparable(SimpleNamespace(config=config.CALIBRATED, **few))
+
+
+def test_swapped_cameras_warn_that_the_images_disagree_with_the_poses(
+    synthetic: dict, caplog: pytest.LogCaptureFixture
+) -> None:
+    views, _ = synthetic[2]
+    swapped = views.c2w[[1, 0]].clone()
+    with caplog.at_level("WARNING", logger="simplenerf.sfm.sparse_depth"):
+        try:
+            compute_sparse_depth(_uint8(views.images), views.intrinsics, swapped)
+        except SfMError:
+            pass  # with swapped cameras triangulation may keep nothing; the warning comes before it
+    warnings = [r.getMessage() for r in caplog.records if "disagree with the given poses" in r.getMessage()]
+    assert len(warnings) == 1, caplog.text
+    assert "views (0, 1)" in warnings[0]
+    # The same cameras in their own order: no warning.
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="simplenerf.sfm.sparse_depth"):
+        compute_sparse_depth(_uint8(views.images), views.intrinsics, views.c2w)
+    assert not [r for r in caplog.records if "disagree" in r.getMessage()], caplog.text

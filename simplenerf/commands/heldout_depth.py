@@ -7,9 +7,10 @@ r"""A trained run's depth error at held-out SfM points: the depth score of a rea
 
 The CLI's options (`simplenerf fit`'s) are overrides of the config; `--config` may be the run's own
 `<run>/config.yaml`. Prints one JSON line: the fine depth's error, and under "depths" that of every depth the model
-renders (fine, coarse and each augmentation's), and under "strips" where the fine depth's error is: per vertical strip
-of the frame (`--strips N`, default 4), the keypoints' count, mean error and the share of it from surfaces rendered
-behind the SfM depth; with `--out FILE` also writes it there (`<run>/heldout_depth.json` is
+renders (fine, coarse and each augmentation's, except those the run's `LossWeightSchedule` retires from step 0, which
+were never trained and are named under "untrained"), and under "strips" where the fine depth's error is: per
+vertical strip of the frame (`--strips N`, default 4), the keypoints' count, mean error and the share of it from
+surfaces rendered behind the SfM depth; with `--out FILE` also writes it there (`<run>/heldout_depth.json` is
 where `simplenerf results` looks for it).
 """
 
@@ -21,6 +22,7 @@ from pathlib import Path
 
 from simplenerf.commands import CommandParser, split_overrides
 from simplenerf.evaluation.heldout_depth import heldout_depth_error, heldout_observations
+from simplenerf.run.callbacks import untrained_augmentations
 from simplenerf.run.cli import load_for_tool
 from simplenerf.run.lock import lock_output
 
@@ -47,8 +49,9 @@ def main(argv: Sequence[str]) -> None:
         lock_output(Path(args.out))  # e.g. <run>/heldout_depth.json: not while a fit or test writes that run
     cli = load_for_tool(args.config, overrides, ckpt=args.ckpt_path)
     dm, model = cli.datamodule, cli.model
+    untrained = untrained_augmentations(model, cli.trainer.callbacks)
     observations = heldout_observations(dm.scene, args.cache)
-    result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk, args.strips)
+    result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk, args.strips, untrained)
     line = json.dumps({"ckpt": args.ckpt_path, "overrides": overrides, **result})
     print(line)
     if args.out:

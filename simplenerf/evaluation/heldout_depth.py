@@ -7,6 +7,7 @@ never saw; the model's rendered depth at those keypoints is compared with the Sf
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -61,11 +62,12 @@ def keypoint_rays(views: Views, observations: list[SparseDepth], near: float) ->
 @torch.no_grad()
 def heldout_depth_error(
     model: SimpleNeRF, scene: Scene, observations: dict[int, SparseDepth], near: float, chunk: int = 8192,
-    strips: int = 4,
+    strips: int = 4, untrained: Collection[str] = (),
 ) -> dict[str, object]:
     """Relative depth error |z - z_sfm| / z_sfm of the fine depth at the held-out keypoints, and under "depths" the
     same for every depth `model.render` gives: fine, coarse and each augmentation's (at the main model's samples of
-    its stage, as in training; deterministic here).
+    its stage, as in training; deterministic here), except the augmentations named in `untrained` (retired from step
+    0 by the run's schedule: their fields are as initialised, so their depths say nothing about the run).
 
     Where the fine depth's error comes from, under "strips": the frame cut into `strips` vertical strips, left to right
     (a keypoint at column u is in strip floor(u * strips / width)), and in each the keypoints' count, their mean error
@@ -74,11 +76,16 @@ def heldout_depth_error(
 
     Returns:
         mean and median relative error of the fine depth over all observations, their count, the number of frames,
-        "depths": {name: {"rel_error_mean", "rel_error_median"}} and
-        "strips": {"points", "rel_error_mean", "behind_share"}, each a list left to right.
+        "depths": {name: {"rel_error_mean", "rel_error_median"}}, "untrained": the augmentations left out (sorted),
+        and "strips": {"points", "rel_error_mean", "behind_share"}, each a list left to right.
     """
     if strips < 1:
         raise ValueError(f"strips must be at least 1, got {strips}")
+    unknown = set(untrained) - {aug.name for aug in model.augmentations}
+    if unknown:
+        raise ValueError(f"untrained names {sorted(unknown)}, not among the model's augmentations "
+                         f"{[aug.name for aug in model.augmentations]}")
+    augmentations = [aug for aug in model.augmentations if aug.name not in untrained]
     device = next(model.parameters()).device
     errors: dict[str, list[np.ndarray]] = {}
     strip_of, behind = [], []
@@ -86,7 +93,7 @@ def heldout_depth_error(
         strip_of.append(np.clip(np.floor(sd.pixels[:, 0] * strips / scene.views.width), 0, strips - 1).astype(int))
         uv = torch.from_numpy(sd.pixels).to(scene.views.c2w.dtype)
         rays = scene.views.rays(torch.full((len(sd),), frame), uv, near).to(device)
-        render = model.nerf.render_rays_chunked(rays, chunk, model.augmentations)
+        render = model.nerf.render_rays_chunked(rays, chunk, augmentations)
         depths = {"fine": render.depth, "coarse": render.coarse_depth, **render.augmented_depth}
         for name, depth in depths.items():
             depth = depth.cpu().double().numpy()
@@ -105,4 +112,4 @@ def heldout_depth_error(
         per_strip["rel_error_mean"].append(float(e.mean()) if e.size else None)
         per_strip["behind_share"].append(float(e[b].sum() / e.sum()) if e.sum() > 0 else None)
     return {**stats["fine"], "points": int(fine.size), "frames": len(observations), "depths": stats,
-            "strips": per_strip}
+            "untrained": sorted(untrained), "strips": per_strip}

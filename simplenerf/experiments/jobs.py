@@ -114,6 +114,7 @@ def _heldout_depth(unit: Unit) -> None:
     import json
 
     from simplenerf.evaluation.heldout_depth import heldout_depth_error, heldout_observations
+    from simplenerf.run.callbacks import untrained_augmentations
     from simplenerf.run.cli import load_for_tool
 
     ckpt = Path(unit.folder) / "checkpoints" / "last.ckpt"
@@ -121,7 +122,8 @@ def _heldout_depth(unit: Unit) -> None:
         cli = load_for_tool([], unit.args, ckpt=str(ckpt), device=_device())
         dm, model = cli.datamodule, cli.model
         observations = heldout_observations(dm.scene, unit.extra["heldout_cache"])
-        result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk)
+        untrained = untrained_augmentations(model, cli.trainer.callbacks)
+        result = heldout_depth_error(model, dm.scene, observations, dm.near, model.hparams.chunk, untrained=untrained)
     except SimpleNeRFError as e:
         raise JobFailed(f"held-out depth: {type(e).__name__}: {e}") from None
     Path(unit.extra["heldout_depth"]).write_text(json.dumps({"ckpt": str(ckpt), **result}) + "\n")

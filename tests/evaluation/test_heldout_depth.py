@@ -45,6 +45,20 @@ def test_every_rendered_depth_is_scored_at_the_keypoints(tmp_path):
     assert result["depths"]["points"]["rel_error_mean"] != result["depths"]["coarse"]["rel_error_mean"]
 
 
+def test_untrained_augmentations_are_left_out_and_named(tmp_path):
+    """An augmentation retired from step 0 (e.g. the ablation without L_ap) is not rendered or scored: "depths" has
+    the others, with the same numbers as when all are scored, and "untrained" names it; an unknown name is refused."""
+    dm, model, frame, pixels, rays = _keypoints_of_a_heldout_frame(tmp_path)
+    sd = SparseDepth(pixels, np.full(5, 2.0, np.float32), np.zeros(5, np.float32), np.arange(5))
+    every = heldout_depth_error(model, dm.scene, {frame: sd}, dm.near, chunk=2)
+    without = heldout_depth_error(model, dm.scene, {frame: sd}, dm.near, chunk=2, untrained={"points"})
+    assert every["untrained"] == [] and without["untrained"] == ["points"]
+    assert set(without["depths"]) == {"fine", "coarse", "views"}
+    assert all(without["depths"][name] == every["depths"][name] for name in ("fine", "coarse", "views"))
+    with pytest.raises(ValueError, match=r"untrained names \['pints'\], not among"):
+        heldout_depth_error(model, dm.scene, {frame: sd}, dm.near, untrained={"pints"})
+
+
 def test_a_moved_scene_reuses_its_cached_heldout_reference(tmp_path, monkeypatch):
     """The held-out reference (SfM from every non-test frame) is cached by the images and cameras, not by the scene's
     folder: the same scene in another folder loads it instead of running SfM again."""

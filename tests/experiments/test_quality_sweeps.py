@@ -112,6 +112,7 @@ def test_a_sweep_without_reference_depth_scores_full_frames_and_heldout_depth(tm
         assert summary["psnr"] is not None and summary["masked_psnr"] is None and summary["depth_mae"] is None
         heldout = json.loads((run / "heldout_depth.json").read_text())
         assert heldout["ckpt"] == str(run / "checkpoints" / "last.ckpt") and heldout["rel_error_mean"] > 0
+        assert heldout["untrained"] == [] and {"points", "views"} <= set(heldout["depths"])  # warmed up, so trained
         errors[model] = (f"{summary['psnr']:.2f}", f"{heldout['rel_error_mean']:.4f}",
                          f"{heldout['rel_error_median']:.4f}")
     table = (out / "results.md").read_text()

@@ -241,6 +241,22 @@ def test_an_augmentation_whose_own_terms_stay_off_is_retired_and_leaves_the_main
     assert main and all(torch.equal(rendered[name], skipped[name]) for name in main)
 
 
+def test_the_augmentations_a_schedule_retires_from_step_0_are_the_untrained_ones():
+    """`untrained_augmentations`: those whose own terms the schedule holds at 0 from step 0 to the end (never
+    rendered in training); a warm-up or a later retirement is not that, nor is a term left at its configured 0.1."""
+    from simplenerf.run.callbacks import LossWeightSchedule, untrained_augmentations
+
+    model = simplenerf_module()
+    assert untrained_augmentations(model, []) == frozenset()
+    ablation = LossWeightSchedule({"points": [(0, 0.0)], "views": [(0, 0.0)]})
+    assert untrained_augmentations(model, [ablation]) == {"points", "views"}
+    warm_up = LossWeightSchedule({"points": [(0, 0.0), (100, 0.1)]})  # views: not scheduled, its weight 0.1
+    assert untrained_augmentations(model, [warm_up]) == frozenset()
+    later = LossWeightSchedule({"points": [(0, 0.1), (1, 0.0)], "views": [(0, 0.0)]})  # points trained one step
+    assert untrained_augmentations(model, [later]) == {"views"} and later.retired(model, 1) == {"points", "views"}
+    assert model.terms["points"].weight == model.terms["views"].weight == 0.1  # asking changes no weight
+
+
 def test_a_schedule_naming_an_unknown_loss_is_one_clear_error():
     from simplenerf.errors import SimpleNeRFError
     from simplenerf.run.callbacks import LossWeightSchedule

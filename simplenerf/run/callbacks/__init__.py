@@ -22,6 +22,7 @@ from simplenerf.run.callbacks.training import (
     RaysPerSecond,
     StopOnNonFiniteLoss,
     TrainingProgressBar,
+    untrained_augmentations,
 )
 from simplenerf.run.resume import RunRecord
 
@@ -37,4 +38,5 @@ __all__ = [
     "TrainingProgressBar",
     "TrainingVideo",
     "ValidationRenders",
+    "untrained_augmentations",
 ]

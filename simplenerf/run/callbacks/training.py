@@ -6,6 +6,7 @@ from __future__ import annotations
 import datetime
 import sys
 import time
+from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 import lightning as L
@@ -288,13 +289,26 @@ class LossWeightSchedule(L.Callback):
                 f"{', '.join(sorted(model.terms))} (augmentation names come from model.augmentations)"
             )
 
+    def retired(self, model: SimpleNeRF, step: int) -> frozenset[str]:
+        """The augmentations retired at `step`: all their own terms 0 from there to the end of the run (a term not
+        scheduled keeps its weight in `model`). Retired at step 0: never rendered in training, so never trained."""
+        def zero_from(name: str) -> bool:
+            weight = model.terms[name].weight
+            return self.zero_from(name, step, self.value(name, step, weight) if name in self.schedules else weight)
+
+        return frozenset(aug.name for aug in model.augmentations if all(map(zero_from, model.own_terms(aug.name))))
+
     def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
         self.check_model(pl_module)
         step = trainer.global_step
         for name in self.schedules:
             term = pl_module.terms[name]
             term.weight = self.value(name, step, term.weight)
-        pl_module.retired = frozenset(
-            aug.name for aug in pl_module.augmentations
-            if all(self.zero_from(name, step, pl_module.terms[name].weight) for name in pl_module.own_terms(aug.name))
-        )
+        pl_module.retired = self.retired(pl_module, step)
+
+
+def untrained_augmentations(model: SimpleNeRF, callbacks: Iterable[L.Callback]) -> frozenset[str]:
+    """The augmentations that the run's `LossWeightSchedule` (among `callbacks`) retires from step 0: never rendered
+    in training, so their fields are as initialised (e.g. an ablation without L_ap and L_av). None without one."""
+    schedule = next((c for c in callbacks if isinstance(c, LossWeightSchedule)), None)
+    return schedule.retired(model, 0) if schedule is not None else frozenset()

@@ -132,6 +132,27 @@ def test_an_unknown_scores_word_is_refused(tmp_path):
         load_sweep(path)
 
 
+def test_realestate_grid_sweep_runs_the_reference_beside_its_variants(monkeypatch):
+    """configs/sweeps/realestate_grid.yaml: the RealEstate-10K clip, seeds 0-2, at quality_grid's short budget; the
+    Simple-RF config as it is, the same with the distortion loss from step 300 (and nothing else different), and its
+    DS-NeRF baseline; full-frame scores, no held-out depth (no SfM reference for the clip's held-out frames)."""
+    plan = planned("realestate_grid", monkeypatch)
+    fits = {u.key: u for u in plan.stage("fit")}
+    models = ("Simple-RF", "Simple-RF-distortion", "DS-NeRF")
+    assert set(fits) == {f"000c3ab189999a83/2v/{m}/seed{seed}" for m in models for seed in (0, 1, 2)}
+    for key, unit in fits.items():
+        config = "realestate_dsnerf" if unit.labels["model"] == "DS-NeRF" else "realestate_simplerf"
+        assert f"configs/grid/{config}.yaml" in " ".join(unit.args) and "1000" in unit.args, key
+    plain, distortion = (fits[f"000c3ab189999a83/2v/{m}/seed0"] for m in models[:2])
+    differ = [(a, b) for a, b in zip(plain.args, distortion.args, strict=True) if a != b and a != plain.folder]
+    assert len(differ) == 1 and "fine_distortion: [[0, 0.0], [300, 0.03]]" in differ[0][1]
+    assert "distortion" not in differ[0][0]
+    assert len({u.digest for u in fits.values()}) == 9
+    tests = plan.stage("test")
+    assert len(tests) == 9 and not any(t.extra.get("heldout_depth") for t in tests)
+    assert plan.stage("table")[0].extra["scores"] == "full"
+
+
 def test_quality_images4_sweep_compares_the_images4_configs_on_every_seed(monkeypatch):
     """configs/sweeps/quality_images4.yaml: grid SimpleNeRF and its DS-NeRF twin at images_4, seeds 0-2, each fit on
     its own config, each test with the held-out depth; the table reads full-frame scores."""

@@ -309,6 +309,6 @@ class LossWeightSchedule(L.Callback):
 
 def untrained_augmentations(model: SimpleNeRF, callbacks: Iterable[L.Callback]) -> frozenset[str]:
     """The augmentations that the run's `LossWeightSchedule` (among `callbacks`) retires from step 0: never rendered
-    in training, so their fields are as initialised (e.g. an ablation without L_ap and L_av). None without one."""
+    in training, so their fields are as initialised (e.g. an ablation without L_ap and L_av); empty without one."""
     schedule = next((c for c in callbacks if isinstance(c, LossWeightSchedule)), None)
     return schedule.retired(model, 0) if schedule is not None else frozenset()

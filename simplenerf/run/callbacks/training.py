@@ -268,9 +268,9 @@ class LossWeightSchedule(L.Callback):
         self.schedules = schedules
 
     def value(self, name: str, step: int, default: float) -> float:
-        """The weight of `name` at `step`."""
+        """The weight of `name` at `step`: `default` before its first listed step, or throughout if not scheduled."""
         current = default
-        for start, value in self.schedules[name]:
+        for start, value in self.schedules.get(name, ()):
             if step >= start:
                 current = value
         return current
@@ -292,11 +292,11 @@ class LossWeightSchedule(L.Callback):
     def retired(self, model: SimpleNeRF, step: int) -> frozenset[str]:
         """The augmentations retired at `step`: all their own terms 0 from there to the end of the run (a term not
         scheduled keeps its weight in `model`). Retired at step 0: never rendered in training, so never trained."""
-        def zero_from(name: str) -> bool:
-            weight = model.terms[name].weight
-            return self.zero_from(name, step, self.value(name, step, weight) if name in self.schedules else weight)
-
-        return frozenset(aug.name for aug in model.augmentations if all(map(zero_from, model.own_terms(aug.name))))
+        return frozenset(
+            aug.name for aug in model.augmentations
+            if all(self.zero_from(name, step, self.value(name, step, model.terms[name].weight))
+                   for name in model.own_terms(aug.name))
+        )
 
     def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
         self.check_model(pl_module)

@@ -26,7 +26,9 @@ from simplenerf.method.augmentations import Augmentation
 from simplenerf.method.losses import psnr_of_mse
 from simplenerf.method.objective import (
     RESERVED_NAMES,
+    ColorSpreadTerm,
     ConcentrationTerm,
+    DistortionTerm,
     MaskedDepthTerm,
     Objective,
     RenderedRays,
@@ -169,11 +171,13 @@ class SimpleNeRF(L.LightningModule):
                               if aug.name not in skip})
 
     def own_terms(self, augmentation: str) -> list[str]:
-        """The terms only an augmentation's render feeds: its masked depth term and its mass concentration (its
-        colour and sparse-depth losses are part of L_color and L_sd, which train only the augmentation itself)."""
+        """The terms only an augmentation's render feeds: its masked depth term, its mass concentration, and a
+        distortion or colour-spread term given its render (its colour and sparse-depth losses are part of L_color and
+        L_sd, which train only the augmentation itself)."""
         return [name for name, term in self.terms.items()
                 if isinstance(term, MaskedDepthTerm) and term.other == augmentation
-                or isinstance(term, ConcentrationTerm) and term.augmentation == augmentation]
+                or isinstance(term, ConcentrationTerm) and term.augmentation == augmentation
+                or isinstance(term, (DistortionTerm, ColorSpreadTerm)) and term.render == augmentation]
 
     def training_step(self, batch: TrainingBatch, batch_idx: int) -> torch.Tensor:
         """One optimiser step of L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc (paper Sec. 4.4; `self.terms`):

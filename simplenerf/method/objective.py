@@ -256,27 +256,33 @@ class ConcentrationTerm(Term):
 
 
 class DistortionTerm(Term):
-    """Mip-NeRF 360's distortion loss on a main render's ray weights (`losses.distortion_loss`), on the random rays."""
+    """Mip-NeRF 360's distortion loss on a render's ray weights (`losses.distortion_loss`), on the random rays.
 
-    def __init__(self, stage: Literal["coarse", "fine"], weight: float) -> None:
-        super().__init__(f"{stage}_distortion", weight, ("random",))
+    By default the main render of `stage`; with `render`, that render (an augmentation's, evaluated at the main
+    model's `stage` samples), as a user's term in `Objective.terms`, named "<render>_distortion"."""
+
+    def __init__(self, stage: Literal["coarse", "fine"], weight: float, render: str | None = None) -> None:
+        self.render = render or stage
+        super().__init__(f"{self.render}_distortion", weight, ("random",))
         self.stage = stage
 
     def value(self, rendered: RenderedRays) -> TermValue:
         samples = rendered.renders.main.samples(self.stage)
-        return TermValue(distortion_loss(rendered.renders[self.stage].weights, samples.t))
+        return TermValue(distortion_loss(rendered.renders[self.render].weights, samples.t))
 
 
 class ColorSpreadTerm(Term):
-    """The spread of a main render's sample colours about its rendered colour (`losses.color_spread_loss`), on the
-    random rays."""
+    """The spread of a render's sample colours about its rendered colour (`losses.color_spread_loss`), on the random
+    rays: by default the main render of `stage`; with `render`, that render (e.g. an augmentation's), as a user's
+    term in `Objective.terms`, named "<render>_color_spread"."""
 
-    def __init__(self, stage: Literal["coarse", "fine"], weight: float) -> None:
-        super().__init__(f"{stage}_color_spread", weight, ("random",))
+    def __init__(self, stage: Literal["coarse", "fine"], weight: float, render: str | None = None) -> None:
+        self.render = render or stage
+        super().__init__(f"{self.render}_color_spread", weight, ("random",))
         self.stage = stage
 
     def value(self, rendered: RenderedRays) -> TermValue:
-        render = rendered.renders[self.stage]
+        render = rendered.renders[self.render]
         return TermValue(color_spread_loss(render.weights, render.sample_rgb, render.rgb))
 
 

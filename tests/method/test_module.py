@@ -463,3 +463,43 @@ def test_a_depth_smoothness_weight_without_unseen_patches_is_refused():
     model.terms["coarse_depth_smoothness"].weight = 0.1
     with pytest.raises(DataError, match="the loss terms coarse_depth_smoothness read"):
         check_unseen_patches(model, [], 0)
+
+
+def test_distortion_and_colour_spread_terms_can_read_an_augmentations_render(datamodule, monkeypatch):
+    """`DistortionTerm` and `ColorSpreadTerm` given `render`: the same losses on that augmentation's render (at the
+    main samples of its stage), named after it, schedulable like any term; they train that augmentation's field and
+    nothing of the main model."""
+    from simplenerf.method.augmentations import Augmentation
+    from simplenerf.method.losses import color_spread_loss, distortion_loss
+    from simplenerf.method.objective import ColorSpreadTerm, DistortionTerm
+    from simplenerf.model.fields import RadianceField
+
+    torch.manual_seed(0)
+    size = {"num_layers": 2, "width": 16, "skip_layer": 1}
+    augs = [Augmentation("points", RadianceField(density_bands=3, **size), depth_weight=0.0),
+            Augmentation("views", RadianceField(view_dependent=False, **size), depth_weight=0.0)]
+    terms = [DistortionTerm("coarse", 0.5, render="points"), ColorSpreadTerm("coarse", 2.0, render="views")]
+    model = SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, **size), augmentations=augs,
+                       objective=Objective(color_weight=0.0, sparse_depth_weight=0.0, terms=terms))
+    assert {"points_distortion", "views_color_spread"} <= set(model.terms)
+    # its own terms: an augmentation whose depth term is off stays rendered (not retired) while these are on
+    assert model.own_terms("points") == ["points", "points_distortion"]
+    assert model.own_terms("views") == ["views", "views_color_spread"]
+    rendered = []
+    original = model.render_part
+    monkeypatch.setattr(model, "render_part", lambda part: rendered.append(original(part)) or rendered[-1])
+    loss, logged = run_step(model, datamodule, monkeypatch)
+    part = rendered[0][0]
+    assert part.kind == "random"
+    t = part.renders.main.coarse_samples.t
+    points, views = part.renders["points"], part.renders["views"]
+    assert torch.allclose(logged["train/loss_points_distortion"], distortion_loss(points.weights, t).detach())
+    assert torch.allclose(logged["train/loss_views_color_spread"],
+                          color_spread_loss(views.weights, views.sample_rgb, views.rgb).detach())
+    assert logged["train/loss_points_distortion"] > 0 and logged["train/loss_views_color_spread"] > 0
+    assert torch.allclose(loss, 0.5 * logged["train/loss_points_distortion"]
+                          + 2.0 * logged["train/loss_views_color_spread"])
+    grads = {name: p.grad for name, p in model.named_parameters()}
+    for index in (0, 1):  # each term trains its augmentation's field
+        assert any(g is not None and g.any() for n, g in grads.items() if n.startswith(f"augmentations.{index}."))
+    assert all(g is None or not g.any() for n, g in grads.items() if n.startswith("nerf."))

@@ -237,3 +237,27 @@ def test_registration_is_the_distance_from_the_projected_keypoint_to_the_observe
     assert (distances[2:] > 1.0).all()
     shifted = seen(uv_b[1:].numpy(), z_b[1:].numpy(), [8, 9])
     assert registration(views, [a, shifted], near=1.0) == pytest.approx(np.zeros(4), abs=1e-3)
+
+
+def test_mask_accuracy_scores_the_trained_augmentations_and_l_cfc():
+    """`masked_pairs`: each augmentation's pair with the main depth of its stage and L_cfc's (main coarse, fine);
+    an augmentation named untrained (retired from step 0: its field as initialised) is left out."""
+    from benchmarks.quality.mask_accuracy import masked_pairs
+    from simplenerf.method.augmentations import Augmentation
+    from simplenerf.method.module import SimpleNeRF
+    from simplenerf.method.objective import Objective
+    from simplenerf.method.reliability import PatchReprojectionMask
+    from simplenerf.model.fields import RadianceField
+    from simplenerf.model.nerf import mlp_nerf
+
+    size = {"num_layers": 2, "width": 8, "skip_layer": 1}
+    cfc, points = PatchReprojectionMask(), PatchReprojectionMask(min_texture=0.02)
+    augs = [Augmentation("points", RadianceField(density_bands=3, **size), points, stage="fine"),
+            Augmentation("views", RadianceField(view_dependent=False, **size))]
+    model = SimpleNeRF(mlp_nerf(num_coarse=4, num_fine=4, **size), augmentations=augs,
+                       objective=Objective(coarse_fine_mask=cfc))
+    pairs = masked_pairs(model)
+    assert [(name, main, other) for name, _, main, other in pairs] == [
+        ("points", "fine", "points"), ("views", "coarse", "views"), ("cfc", "coarse", "fine")]
+    assert pairs[0][1] is points and pairs[2][1] is cfc
+    assert [name for name, *_ in masked_pairs(model, untrained={"points", "views"})] == ["cfc"]

@@ -18,7 +18,9 @@ A mask at chance has a precision near the oracle's share; a mask worth its loss,
     python -m benchmarks.quality.mask_accuracy RUN [--cache DIR] [--ckpt_path CKPT] [-- CLI overrides]
 
 RUN is a run folder (config.yaml, checkpoints/last.ckpt); `--cache` is where the SfM reference is cached (a sweep's
-runs: <sweep>/cache/sparse_depth, where its held-out depth put it). Prints one JSON line.
+runs: <sweep>/cache/sparse_depth, where its held-out depth put it). Prints one JSON line; augmentations that the run's
+`LossWeightSchedule` retires from step 0 (never trained, e.g. an ablation's) are left out and named under
+"untrained", as `simplenerf heldout-depth` does.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +36,8 @@ import torch
 
 from simplenerf.commands import split_overrides
 from simplenerf.evaluation.heldout_depth import keypoint_rays, reference_observations, train_view_observations
-from simplenerf.method.reliability import ReprojectionErrors
+from simplenerf.method.reliability import ReliabilityMask, ReprojectionErrors
+from simplenerf.run.callbacks import untrained_augmentations
 from simplenerf.run.cli import load_for_tool
 
 
@@ -66,17 +70,27 @@ def pair_scores(z_main: np.ndarray, z_other: np.ndarray, z_sfm: np.ndarray, mask
     return scores
 
 
-@torch.no_grad()
-def mask_accuracy(model, scene, near: float, cache: str, chunk: int = 4096) -> dict[str, dict[str, float]]:
-    """`pair_scores` of every masked depth pair of `model` (each augmentation with its main depth, and L_cfc) at the
-    reference SfM keypoints of the train views of `scene`."""
-    views = scene.views.subset(scene.split.train)
-    rays, z_sfm = keypoint_rays(views, train_view_observations(scene, reference_observations(scene, cache)), near)
-    render = model.nerf.render_rays_chunked(rays.rays, chunk, model.augmentations)
-    depths = {"fine": render.depth, "coarse": render.coarse_depth, **render.augmented_depth}
-    pairs = [(aug.name, aug.mask, aug.stage, aug.name) for aug in model.augmentations]
+def masked_pairs(model, untrained: Collection[str] = ()) -> list[tuple[str, ReliabilityMask | None, str, str]]:
+    """The masked depth pairs of `model` as (term name, mask, main render, other render): each augmentation with the
+    main depth of its stage, but those named in `untrained` (never trained: their depth says nothing about the run),
+    and L_cfc's (main coarse, fine) where the objective has a coarse-fine mask."""
+    pairs = [(aug.name, aug.mask, aug.stage, aug.name) for aug in model.augmentations if aug.name not in untrained]
     if model.objective.coarse_fine_mask is not None:
         pairs.append(("cfc", model.objective.coarse_fine_mask, "coarse", "fine"))
+    return pairs
+
+
+@torch.no_grad()
+def mask_accuracy(model, scene, near: float, cache: str, chunk: int = 4096,
+                  untrained: Collection[str] = ()) -> dict[str, dict[str, float]]:
+    """`pair_scores` of every masked depth pair of `model` (`masked_pairs`) at the reference SfM keypoints of the
+    train views of `scene`."""
+    pairs = masked_pairs(model, untrained)
+    augmentations = [aug for aug in model.augmentations if aug.name not in untrained]
+    views = scene.views.subset(scene.split.train)
+    rays, z_sfm = keypoint_rays(views, train_view_observations(scene, reference_observations(scene, cache)), near)
+    render = model.nerf.render_rays_chunked(rays.rays, chunk, augmentations)
+    depths = {"fine": render.depth, "coarse": render.coarse_depth, **render.augmented_depth}
     z_sfm = z_sfm.numpy()
     errors = ReprojectionErrors(views, rays)  # as in a training step: each depth's patch error computed once
     result = {}
@@ -99,8 +113,10 @@ def main() -> None:
     ckpt = args.ckpt_path or args.run / "checkpoints" / "last.ckpt"
     cli = load_for_tool([str(args.run / "config.yaml")], overrides, ckpt=str(ckpt))
     model, data = cli.model, cli.datamodule
-    result = mask_accuracy(model, data.scene, data.near, args.cache, model.hparams.chunk)
-    print(json.dumps({"run": str(args.run), "checkpoint": str(args.ckpt_path or "last"), "pairs": result}))
+    untrained = untrained_augmentations(model, cli.trainer.callbacks)
+    result = mask_accuracy(model, data.scene, data.near, args.cache, model.hparams.chunk, untrained)
+    print(json.dumps({"run": str(args.run), "checkpoint": str(args.ckpt_path or "last"), "pairs": result,
+                      "untrained": sorted(untrained)}))
 
 
 if __name__ == "__main__":

@@ -346,6 +346,10 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
     names = [t.name for t in terms]
     if len(set(names)) != len(names):
         raise ValueError(f"loss term names must be unique, got {names}")
+    for t in terms:
+        if isinstance(t, (DistortionTerm, ColorSpreadTerm)) and t.render not in fields:
+            raise ValueError(f"the term {t.name!r} reads the render {t.render!r}, which the model does not have "
+                             f"(its renders: {', '.join(fields)})")
     return {t.name: t for t in terms}
 
 

@@ -503,3 +503,6 @@ def test_distortion_and_colour_spread_terms_can_read_an_augmentations_render(dat
     for index in (0, 1):  # each term trains its augmentation's field
         assert any(g is not None and g.any() for n, g in grads.items() if n.startswith(f"augmentations.{index}."))
     assert all(g is None or not g.any() for n, g in grads.items() if n.startswith("nerf."))
+    with pytest.raises(ValueError, match="reads the render 'point'.*coarse, fine, points, views"):
+        SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, **size), augmentations=augs,
+                   objective=Objective(terms=[DistortionTerm("coarse", 0.5, render="point")]))

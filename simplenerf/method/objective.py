@@ -346,10 +346,14 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
     names = [t.name for t in terms]
     if len(set(names)) != len(names):
         raise ValueError(f"loss term names must be unique, got {names}")
+    stages = {"coarse": "coarse", "fine": "fine", **{aug.name: aug.stage for aug in augmentations}}
     for t in terms:
         if isinstance(t, (DistortionTerm, ColorSpreadTerm)) and t.render not in fields:
             raise ValueError(f"the term {t.name!r} reads the render {t.render!r}, which the model does not have "
                              f"(its renders: {', '.join(fields)})")
+        if isinstance(t, DistortionTerm) and stages.get(t.render, t.stage) != t.stage:
+            raise ValueError(f"the term {t.name!r} needs stage {stages[t.render]!r}: the render {t.render!r} is "
+                             f"evaluated at the main model's {stages[t.render]} samples, not its {t.stage} ones")
     return {t.name: t for t in terms}
 
 

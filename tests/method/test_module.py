@@ -506,3 +506,7 @@ def test_distortion_and_colour_spread_terms_can_read_an_augmentations_render(dat
     with pytest.raises(ValueError, match="reads the render 'point'.*coarse, fine, points, views"):
         SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, **size), augmentations=augs,
                    objective=Objective(terms=[DistortionTerm("coarse", 0.5, render="point")]))
+    augs[0].stage = "fine"  # the points augmentation at the fine samples: its distortion needs their t
+    with pytest.raises(ValueError, match="needs stage 'fine'"):
+        SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, **size), augmentations=augs,
+                   objective=Objective(terms=[DistortionTerm("coarse", 0.5, render="points")]))

@@ -31,6 +31,7 @@ from simplenerf.method.objective import (
     DistortionTerm,
     MaskedDepthTerm,
     Objective,
+    RegularizerTerm,
     RenderedRays,
     Renders,
     Term,
@@ -179,6 +180,14 @@ class SimpleNeRF(L.LightningModule):
                 or isinstance(term, ConcentrationTerm) and term.augmentation == augmentation
                 or isinstance(term, (DistortionTerm, ColorSpreadTerm)) and term.render == augmentation]
 
+    def step_terms(self) -> dict[str, Term]:
+        """The terms of a training step: all of them but the regularisers of retired augmentations' fields (a retired
+        augmentation is not rendered, so a regulariser alone would move its field, e.g. a grid's planes under their
+        total variation, for nothing: the main model never reads it again)."""
+        retired = [aug.field for aug in self.augmentations if aug.name in self.retired]
+        return {name: term for name, term in self.terms.items()
+                if not (isinstance(term, RegularizerTerm) and any(term.field is f for f in retired))}
+
     def training_step(self, batch: TrainingBatch, batch_idx: int) -> torch.Tensor:
         """One optimiser step of L = l1 Lcolor + l2 Lsd + l3 Lap + l4 Lav + l5 Lcfc (paper Sec. 4.4; `self.terms`):
         the batch's parts rendered and backpropagated (`backward_parts`), the gradients averaged over DDP processes
@@ -202,7 +211,7 @@ class SimpleNeRF(L.LightningModule):
         total, values, masks, fine_rgb = torch.zeros((), device=self.device), {}, {}, []
         for i, part in enumerate(parts):
             rendered = self.render_part(part)
-            result = part_loss(self.terms, rendered, regularize=i == len(parts) - 1)
+            result = part_loss(self.step_terms(), rendered, regularize=i == len(parts) - 1)
             self.part_values = result.values  # what `StopOnNonFiniteLoss` names when this part's loss is not finite
             if result.loss.requires_grad:  # (not when every term this part's rays feed has weight 0)
                 backward(result.loss)  # frees this part's activations before the next part is rendered

@@ -510,3 +510,27 @@ def test_distortion_and_colour_spread_terms_can_read_an_augmentations_render(dat
     with pytest.raises(ValueError, match="needs stage 'fine'"):
         SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, **size), augmentations=augs,
                    objective=Objective(terms=[DistortionTerm("coarse", 0.5, render="points")]))
+
+
+def test_a_retired_augmentations_regularisers_leave_its_field_alone(datamodule, monkeypatch):
+    """A retired augmentation is not rendered, and its field's regulariser (a grid's TV) is left out of the step too:
+    its planes get no gradient (before, the TV alone moved them every step after retirement). Not retired, the TV
+    is in the step and trains them."""
+    from simplenerf.method.augmentations import Augmentation
+    from simplenerf.model.grid import KPlanesField
+
+    size = {"num_layers": 2, "width": 16, "skip_layer": 1}
+    for retired in (frozenset(), frozenset({"points"})):
+        torch.manual_seed(0)
+        aug = Augmentation("points", KPlanesField(resolutions=[4], features=4, hidden=8, tv_weight=0.1),
+                           depth_weight=0.0)
+        model = SimpleNeRF(mlp_nerf(num_coarse=8, num_fine=8, **size), augmentations=[aug],
+                           objective=Objective(color_weight=0.0, sparse_depth_weight=0.0))
+        assert "tv_points" in model.terms and model.terms["tv_points"].weight == 0.1
+        model.retired = retired
+        _, logged = run_step(model, datamodule, monkeypatch)
+        planes = [p.grad for n, p in model.named_parameters() if n.startswith("augmentations.0.field.planes")]
+        if retired:
+            assert "train/loss_tv_points" not in logged and all(g is None for g in planes)
+        else:
+            assert logged["train/loss_tv_points"] > 0 and all(g is not None and g.any() for g in planes)

@@ -209,9 +209,10 @@ class SimpleNeRF(L.LightningModule):
         to the whole batch's); the fields' regularisers once, with the last part. Gradients accumulate in `.grad`."""
         parts = batch_parts(batch, self.hparams.rays_per_backward)
         total, values, masks, fine_rgb = torch.zeros((), device=self.device), {}, {}, []
+        terms = self.step_terms()  # once per step: retirement changes between steps, not between parts
         for i, part in enumerate(parts):
             rendered = self.render_part(part)
-            result = part_loss(self.step_terms(), rendered, regularize=i == len(parts) - 1)
+            result = part_loss(terms, rendered, regularize=i == len(parts) - 1)
             self.part_values = result.values  # what `StopOnNonFiniteLoss` names when this part's loss is not finite
             if result.loss.requires_grad:  # (not when every term this part's rays feed has weight 0)
                 backward(result.loss)  # frees this part's activations before the next part is rendered

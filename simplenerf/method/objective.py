@@ -351,7 +351,7 @@ def build_terms(objective: Objective, augmentations: Sequence, fields: Mapping[s
         if isinstance(t, (DistortionTerm, ColorSpreadTerm)) and t.render not in stages:
             raise ValueError(f"the term {t.name!r} reads the render {t.render!r}, which the model does not have "
                              f"(its renders: {', '.join(stages)})")
-        if isinstance(t, DistortionTerm) and stages.get(t.render, t.stage) != t.stage:
+        if isinstance(t, DistortionTerm) and stages[t.render] != t.stage:
             raise ValueError(f"the term {t.name!r} needs stage {stages[t.render]!r}: the render {t.render!r} is "
                              f"evaluated at the main model's {stages[t.render]} samples, not its {t.stage} ones")
     return {t.name: t for t in terms}

@@ -41,6 +41,7 @@ class PairReport:
     num_inliers: int
     rotation_error: float | None  # degrees between COLMAP's estimated relative rotation and the given poses' one
     direction_error: float | None  # degrees between the estimated and the given directions of the baseline
+    unchecked: str = ""  # why COLMAP's pose of a matched pair was not compared with the given one (`unchecked_reason`)
 
     def disagrees(self, max_rotation_error: float = 5.0, max_direction_error: float = 45.0) -> bool:
         """Whether COLMAP's own relative pose contradicts the given one beyond its usual error on short baselines.
@@ -53,7 +54,7 @@ class PairReport:
         return self.rotation_error > max_rotation_error or self.direction_error > max_direction_error
 
     def describe(self) -> str:
-        off = ""
+        off = f" ({self.unchecked})" if self.unchecked else ""
         if self.rotation_error is not None and self.direction_error is not None:
             off = (
                 f" (rotation off {self.rotation_error:.1f} deg, baseline direction off {self.direction_error:.0f} deg)"
@@ -84,7 +85,8 @@ def verified_pairs(database_path: Path, names: list[str], c2w: np.ndarray) -> li
             cosine = unit(estimated.translation) @ unit(translation)
             direction_error = float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
         views = (min(v1, v2), max(v1, v2))
-        reports[views] = PairReport(views, len(geometry.inlier_matches), rotation_error, direction_error)
+        reports[views] = PairReport(views, len(geometry.inlier_matches), rotation_error, direction_error,
+                                    unchecked_reason(geometry))
     n = len(names)
     # Pairs COLMAP dropped entirely (no match at all) are reported too, so the error lists every pair.
     return [reports.get((a, b), PairReport((a, b), 0, None, None)) for a in range(n) for b in range(a + 1, n)]
@@ -106,6 +108,17 @@ def comparable(geometry) -> bool:
     """Whether COLMAP's relative pose of this verified pair is a meaningful check of the given poses."""
     return (geometry.cam2_from_cam1 is not None and len(geometry.inlier_matches) >= MIN_POSE_INLIERS
             and geometry.config in POSE_CONFIGS)
+
+
+def unchecked_reason(geometry) -> str:
+    """Why a verified pair's pose says nothing about the given poses, for the progress log; "" if it is compared."""
+    if comparable(geometry):
+        return ""
+    if geometry.cam2_from_cam1 is None:
+        return "no relative pose: the poses are not checked by it"
+    if len(geometry.inlier_matches) < MIN_POSE_INLIERS:
+        return f"under {MIN_POSE_INLIERS} matches: too few to check the poses by"
+    return "a planar pair: its pose is ambiguous, the poses are not checked by it"
 
 
 def unit(vector: np.ndarray) -> np.ndarray:

@@ -253,7 +253,7 @@ def test_only_essential_matrix_poses_are_compared_with_the_given_poses():
     """A planar pair's relative pose comes from an ambiguous homography decomposition: no pose warning from it."""
     from types import SimpleNamespace
 
-    from simplenerf.sfm.known_poses import MIN_POSE_INLIERS, comparable
+    from simplenerf.sfm.known_poses import MIN_POSE_INLIERS, PairReport, comparable, unchecked_reason
 
     config = pycolmap.TwoViewGeometryConfiguration
     pair = dict(cam2_from_cam1=pycolmap.Rigid3d(), inlier_matches=np.zeros((MIN_POSE_INLIERS, 2)))
@@ -265,6 +265,18 @@ def test_only_essential_matrix_poses_are_compared_with_the_given_poses():
     # Too few matches for COLMAP's pose to judge the given one (horns' pair of 16 matches, 10.9 deg off): no warning.
     few = dict(cam2_from_cam1=pycolmap.Rigid3d(), inlier_matches=np.zeros((MIN_POSE_INLIERS - 1, 2)))
     assert not comparable(SimpleNamespace(config=config.CALIBRATED, **few))
+    # The progress log says why such a pair's pose was not compared, so no warning does not read as "poses checked".
+    reasons = [unchecked_reason(SimpleNamespace(config=config.CALIBRATED, **few)),
+               unchecked_reason(SimpleNamespace(config=config.PLANAR, **pair)),
+               unchecked_reason(SimpleNamespace(config=config.CALIBRATED, **pair))]
+    assert reasons == [f"under {MIN_POSE_INLIERS} matches: too few to check the poses by",
+                       "a planar pair: its pose is ambiguous, the poses are not checked by it", ""]
+    few_report = PairReport((0, 1), MIN_POSE_INLIERS - 1, None, None, reasons[0])
+    assert few_report.describe() == (f"views (0, 1): {MIN_POSE_INLIERS - 1} verified matches "
+                                     f"(under {MIN_POSE_INLIERS} matches: too few to check the poses by)")
+    assert not few_report.disagrees()
+    assert PairReport((0, 1), 40, 1.3, 16.0).describe() == (
+        "views (0, 1): 40 verified matches (rotation off 1.3 deg, baseline direction off 16 deg)")
 
 
 def test_swapped_cameras_warn_that_the_images_disagree_with_the_poses(

@@ -194,10 +194,11 @@ class Evaluator(L.Callback):
         self.run_config: str | None = None
         """YAML of the config this test runs with, set by the CLI (`cli.RunConfig`); saved beside the results."""
 
-    def check_inputs(self, stage: str) -> None:
+    def check_scoring(self, stage: str) -> None:
         """Loads LPIPS for `test`: missing weights stop the run before anything is rendered or written. `fit` checks
         them too (found, or downloaded into the torch hub cache, then let go): the run's config names this callback,
-        and its `test` would otherwise stop at the missing weights only after the whole training."""
+        and its `test` would otherwise stop at the missing weights only after the whole training. The CLI calls this
+        only when the split has test frames: without them `test` renders instead of scoring (own photos)."""
         if stage == "test" and self.use_lpips and self.lpips_net is None:
             self.lpips_net = LPIPS.from_weights(self.lpips_weights, allow_download=True)
         elif stage == "fit" and self.use_lpips:
@@ -236,7 +237,7 @@ class Evaluator(L.Callback):
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         if stage not in ("test", "predict"):
             return
-        self.check_inputs(stage)
+        self.check_scoring(stage)  # loads LPIPS, if the CLI has not (a test run outside it)
         name = "test" if stage == "test" else "predict"
         self._final = self.final_folder(trainer, name)
         self._partial = self._final.with_name(self._final.name + ".partial")

@@ -31,8 +31,9 @@ class ChecksModel(Protocol):
 
 @runtime_checkable
 class ChecksInputs(Protocol):
-    """A part of a run (the data module, the evaluator) that reads and checks what `stage` needs (the scene, LPIPS
-    weights) before anything is written."""
+    """A part of a run (the data module, the viewer) that reads and checks what `stage` needs (the scene, a free
+    port) before anything is written. The evaluator's LPIPS weights are checked after it, by the CLI, only when the
+    scene has test frames to score (`Evaluator.check_scoring`)."""
 
     def check_inputs(self, stage: str) -> None: ...
 

@@ -230,6 +230,9 @@ class SimpleNeRFCLI(LightningCLI):
         check_model_meets_data(self.model, data.n_views if data is not None else None, subcommand)
         try:
             preflight_inputs([self.datamodule, *self.trainer.callbacks], self.model, subcommand)
+            if data is None or data.scene.split.test:  # no test frames: `test` renders, nothing needs LPIPS
+                for evaluator in (c for c in self.trainer.callbacks if isinstance(c, Evaluator)):
+                    evaluator.check_scoring(subcommand)
         except LPIPSWeightsNotFound as e:
             # The advice must be one that works: lpips_weights takes a path, lpips turns the metric off.
             raise SimpleNeRFError(re.sub(r"\(e\.g\. `--evaluation\.lpips_weights none`\)",

@@ -230,7 +230,9 @@ class SimpleNeRFCLI(LightningCLI):
         check_model_meets_data(self.model, data.n_views if data is not None else None, subcommand)
         try:
             preflight_inputs([self.datamodule, *self.trainer.callbacks], self.model, subcommand)
-            if data is None or data.scene.split.test:  # no test frames: `test` renders, nothing needs LPIPS
+            # Without test frames (own photos) `test` renders instead of scoring (`execute`): nothing needs LPIPS.
+            scores_frames = data is None or bool(data.scene.split.test)
+            if scores_frames:
                 for evaluator in (c for c in self.trainer.callbacks if isinstance(c, Evaluator)):
                     evaluator.check_scoring(subcommand)
         except LPIPSWeightsNotFound as e:
@@ -270,8 +272,7 @@ class SimpleNeRFCLI(LightningCLI):
             if hint := hardware.cpu_budget_hint(device, mlp, self.trainer.max_steps):
                 print(f"simplenerf: {hint}", file=sys.stderr, flush=True)
         signals.at_step_end = subcommand == "fit"  # a test frame can take minutes: test stops at once
-        scene = data.scene if data is not None else None
-        self._render_instead = subcommand == "test" and scene is not None and not scene.split.test
+        self._render_instead = subcommand == "test" and not scores_frames
 
     def execute(self, subcommand: str, **kwargs: Any) -> None:
         """The trainer's `subcommand` with its arguments, its stops (a diverged loss, a signal) as one line each."""

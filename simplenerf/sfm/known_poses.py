@@ -74,7 +74,8 @@ def verified_pairs(database_path: Path, names: list[str], c2w: np.ndarray) -> li
         id1, id2 = pycolmap.pair_id_to_image_pair(pair_id)
         v1, v2 = view_of[id1], view_of[id2]
         rotation_error = direction_error = None
-        if comparable(geometry):
+        unchecked = unchecked_reason(geometry)
+        if not unchecked:
             pose1, pose2 = colmap_cam_from_world(c2w[v1]), colmap_cam_from_world(c2w[v2])
             rotation = pose2[:, :3] @ pose1[:, :3].T
             translation = pose2[:, 3] - rotation @ pose1[:, 3]
@@ -85,8 +86,7 @@ def verified_pairs(database_path: Path, names: list[str], c2w: np.ndarray) -> li
             cosine = unit(estimated.translation) @ unit(translation)
             direction_error = float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
         views = (min(v1, v2), max(v1, v2))
-        reports[views] = PairReport(views, len(geometry.inlier_matches), rotation_error, direction_error,
-                                    unchecked_reason(geometry))
+        reports[views] = PairReport(views, len(geometry.inlier_matches), rotation_error, direction_error, unchecked)
     n = len(names)
     # Pairs COLMAP dropped entirely (no match at all) are reported too, so the error lists every pair.
     return [reports.get((a, b), PairReport((a, b), 0, None, None)) for a in range(n) for b in range(a + 1, n)]
@@ -104,21 +104,20 @@ POSE_CONFIGS = (pycolmap.TwoViewGeometryConfiguration.CALIBRATED, pycolmap.TwoVi
 MIN_POSE_INLIERS = 30
 
 
-def comparable(geometry) -> bool:
-    """Whether COLMAP's relative pose of this verified pair is a meaningful check of the given poses."""
-    return (geometry.cam2_from_cam1 is not None and len(geometry.inlier_matches) >= MIN_POSE_INLIERS
-            and geometry.config in POSE_CONFIGS)
-
-
 def unchecked_reason(geometry) -> str:
     """Why a verified pair's pose says nothing about the given poses, for the progress log; "" if it is compared."""
-    if comparable(geometry):
-        return ""
     if geometry.cam2_from_cam1 is None:
         return "no relative pose: the poses are not checked by it"
     if len(geometry.inlier_matches) < MIN_POSE_INLIERS:
         return f"under {MIN_POSE_INLIERS} matches: too few to check the poses by"
-    return "a planar pair: its pose is ambiguous, the poses are not checked by it"
+    if geometry.config not in POSE_CONFIGS:
+        return "a planar pair: its pose is ambiguous, the poses are not checked by it"
+    return ""
+
+
+def comparable(geometry) -> bool:
+    """Whether COLMAP's relative pose of this verified pair is a meaningful check of the given poses."""
+    return not unchecked_reason(geometry)
 
 
 def unit(vector: np.ndarray) -> np.ndarray:

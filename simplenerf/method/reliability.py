@@ -294,6 +294,7 @@ class PatchReprojectionMask(ReliabilityMask):
     def __init__(
         self, patch_size: int = 5, error_threshold: float = 0.1, require_in_front: bool = True,
         require_both_valid: bool = False, min_texture: float = 0.0, search_radius: int = 0,
+        max_pull_back: float | None = None,
     ) -> None:
         """
         Args:
@@ -318,6 +319,12 @@ class PatchReprojectionMask(ReliabilityMask):
                 1.35 px (median) from where that view observed it, 3.8 px on the near leaves, and there the right
                 depth's 5 x 5 patch misses e_tau and loses to a farther one (docs/results.md, "Where the blur and
                 the streaks come from", 18).
+            max_pull_back: f; never train a depth toward one more than f (a fraction of itself) farther from the
+                camera: where the winner's depth exceeds the loser's by more than f times the loser's, the mask is 0.
+                None (the paper and the release): the better patch wins in either direction, so a thin near
+                structure whose patch a farther depth also explains (fern's leaves in front of the plain wall) can
+                be pulled back to what is behind it (docs/results.md, "Where the blur and the streaks come from",
+                19 and 33).
         """
         _check_patch_size(patch_size)
         if not error_threshold > 0:
@@ -330,6 +337,9 @@ class PatchReprojectionMask(ReliabilityMask):
         if search_radius < 0:
             raise ValueError(f"search_radius must be >= 0, got {search_radius}")
         self.search_radius = search_radius
+        if max_pull_back is not None and not max_pull_back >= 0:
+            raise ValueError(f"max_pull_back must be >= 0 or None, got {max_pull_back}")
+        self.max_pull_back = max_pull_back
 
     def __call__(self, views: Views, rays: RayBatch, z_main: torch.Tensor, z_other: torch.Tensor) -> torch.Tensor:
         return self.judge(ReprojectionErrors(views, rays), "main", z_main, "other", z_other)
@@ -344,6 +354,10 @@ class PatchReprojectionMask(ReliabilityMask):
             mask = torch.where(torch.isfinite(e_main) & torch.isfinite(e_other), mask, 0.0)
         if self.min_texture > 0:
             mask = torch.where(errors.texture(self.patch_size) >= self.min_texture, mask, 0.0)
+        if self.max_pull_back is not None:  # +1 trains z_main toward z_other, -1 the reverse
+            main_back = z_other.detach() > (1 + self.max_pull_back) * z_main.detach()
+            other_back = z_main.detach() > (1 + self.max_pull_back) * z_other.detach()
+            mask = torch.where(((mask == 1) & main_back) | ((mask == -1) & other_back), 0.0, mask)
         return mask
 
 

@@ -328,6 +328,26 @@ def test_min_texture_judges_only_rays_whose_own_patch_is_textured(sharp_views):
         PatchReprojectionMask(min_texture=-0.1)
 
 
+def test_max_pull_back_never_trains_a_depth_toward_a_much_farther_one(sharp_views):
+    # A near depth (0.6 of the true one) loses to the true depth: the paper's mask trains it back to the true surface
+    # (+1 with the near one as main, -1 with it as other). With max_pull_back 0.2 those rays are left unjudged, since
+    # the winner is 1.67 times as far; a winner only 1.1 times as far, and every pull forward, keep the paper's mask.
+    batch = pixel_grid(sharp_views, stride=4)
+    ctx = context(sharp_views, batch)
+    z_true = batch["depth"]
+    paper, limited = PatchReprojectionMask(K, THRESHOLD), PatchReprojectionMask(K, THRESHOLD, max_pull_back=0.2)
+    for z_near in (z_true * 0.6, z_true / 1.1):
+        back = bool((z_true > 1.2 * z_near).all())
+        for main, other, pull_back in ((z_near, z_true, 1.0), (z_true, z_near, -1.0)):
+            reference, mask = paper(*ctx, main, other), limited(*ctx, main, other)
+            assert (reference == pull_back).float().mean() > 0.25  # the true depth wins on many rays
+            expected = torch.where(reference == pull_back, 0.0, reference) if back else reference
+            assert torch.equal(mask, expected)
+            assert torch.equal(limited.judge(ReprojectionErrors(*ctx), "a", main, "b", other), expected)
+    with pytest.raises(ValueError, match="max_pull_back"):
+        PatchReprojectionMask(max_pull_back=-0.1)
+
+
 def test_search_radius_finds_the_patch_of_views_that_register_only_to_two_pixels(sharp_views):
     # The nearest view of view 0 shifted two columns to the right (a pose error of 2 px): the exact depth's patch now
     # misses, and with search_radius 2 the shifted patch is among those compared, so its error is at most the

@@ -354,10 +354,9 @@ class PatchReprojectionMask(ReliabilityMask):
             mask = torch.where(torch.isfinite(e_main) & torch.isfinite(e_other), mask, 0.0)
         if self.min_texture > 0:
             mask = torch.where(errors.texture(self.patch_size) >= self.min_texture, mask, 0.0)
-        if self.max_pull_back is not None:  # +1 trains z_main toward z_other, -1 the reverse
-            main_back = z_other.detach() > (1 + self.max_pull_back) * z_main.detach()
-            other_back = z_main.detach() > (1 + self.max_pull_back) * z_other.detach()
-            mask = torch.where(((mask == 1) & main_back) | ((mask == -1) & other_back), 0.0, mask)
+        if self.max_pull_back is not None:  # the winner: z_other where +1 (it trains z_main), z_main where -1
+            winner, loser = torch.where(mask == 1, z_other, z_main), torch.where(mask == 1, z_main, z_other)
+            mask = torch.where(winner > (1 + self.max_pull_back) * loser, 0.0, mask)
         return mask
 
 

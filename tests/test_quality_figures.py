@@ -11,7 +11,7 @@ import torch
 
 from benchmarks.quality.mask_accuracy import pair_scores
 from benchmarks.quality.registration import registration
-from benchmarks.quality.streak_index import axis_ratio, streak_index, strip_ratios
+from benchmarks.quality.streak_index import axis_ratio, matched_blur, streak_index, strip_ratios
 from benchmarks.quality.texture_in_depth import flat_pixels, score
 from simplenerf.data.llff import load_llff_scene, subset
 from simplenerf.sfm.sparse_depth import SparseDepth
@@ -87,6 +87,35 @@ def test_strip_ratios_place_the_streaks_across_the_frame(tmp_path):
     index = streak_index(run, [tmp_path / "000.png"], strips=2)
     assert index["depth_strips"] == pytest.approx([2.0, 6.0]) and index["render_strips"] == pytest.approx([1.0, 1.0])
     assert index["depth"] == pytest.approx(axis_ratio(depth) / 0.5)  # the whole frame's index is unchanged
+
+
+def test_the_matched_index_tells_blur_from_a_smear_along_rows(tmp_path):
+    """Blur alone raises the plain index of a photo whose fine texture is isotropic and whose large-scale structure runs
+    along rows; against the photo blurred as much, a blurred render is at 1 and a smeared one stays above."""
+    rows = np.mgrid[0:60, 0:80][0].astype(float)
+    texture = np.random.default_rng(0).random((60, 80)) * 80.0  # isotropic fine texture
+    photo = np.repeat((60.0 + texture + 20.0 * np.sin(rows / 10.0))[..., None], 3, axis=-1).astype(np.uint8)
+    blurred = cv2.GaussianBlur(photo, (0, 0), 2.0)
+    smeared = cv2.blur(photo, (9, 1))  # 9 px along rows
+    sigma, soft = matched_blur(photo, blurred)
+    assert sigma == pytest.approx(2.0, abs=0.05) and soft.shape == photo.shape
+    assert matched_blur(photo, photo)[0] == 0.0 and (matched_blur(photo, photo)[1] == photo).all()
+    assert matched_blur(photo, np.full_like(photo, 9), max_sigma=4.0)[0] == 4.0  # a flat render: the largest blur
+    cv2.imwrite(str(tmp_path / "000.png"), photo)
+    for name, render in (("blurred", blurred), ("smeared", smeared)):
+        run = tmp_path / name
+        (run / "test" / "depth").mkdir(parents=True)
+        (run / "test" / "rgb").mkdir()
+        np.save(run / "test" / "depth" / "image000.npy", render.mean(axis=-1))
+        cv2.imwrite(str(run / "test" / "rgb" / "image000.png"), render)
+    plain = streak_index(tmp_path / "blurred", [tmp_path / "000.png"], matched=True)
+    assert plain["render"] > 1.4  # the plain index counts this blur as a streak ...
+    assert plain["render_matched"] == pytest.approx(1.0, abs=0.03)  # ... the matched one does not
+    assert plain["depth_matched"] == pytest.approx(plain["render_matched"])  # the depth takes its render's blur
+    assert plain["matched_sigma"] == pytest.approx(2.0, abs=0.05)
+    smear = streak_index(tmp_path / "smeared", [tmp_path / "000.png"], strips=2, matched=True)
+    assert smear["render_matched"] > 2.0 and len(smear["render_strips_matched"]) == 2
+    assert smear["render"] == pytest.approx(axis_ratio(smeared) / axis_ratio(photo))  # the plain index unchanged
 
 
 def test_blur_calibration_degrades_as_named():

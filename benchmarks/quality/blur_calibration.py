@@ -9,7 +9,9 @@ and the streaks come from"): each test photo against degraded copies of itself, 
 
     python -m benchmarks.quality.blur_calibration ../shared/data/nerf_llff_data/fern --factor 4 [--views 2]
 
-Prints one JSON line: per degradation, mean PSNR and LPIPS over the test frames (the paper's LLFF split).
+Prints one JSON line: per degradation, mean PSNR and LPIPS over the test frames (the paper's LLFF split), and the
+copy's streak index (benchmarks.quality.streak_index: the whole frame, its 4 vertical strips, and against the photo
+blurred as much; docs/results.md 34): what blur alone does to the index.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import cv2
 import numpy as np
 import torch
 
+from benchmarks.quality.streak_index import axis_ratio, matched_blur, strip_ratios
 from simplenerf.data.llff import list_images, llff_split, read_image
 from simplenerf.metrics.lpips import LPIPS
 from simplenerf.metrics.scores import lpips, psnr
@@ -57,18 +60,24 @@ def main() -> None:
     def tensor(image: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(image.astype(np.float32) / 255.0)[None]
 
-    scores: dict[str, list[tuple[float, float]]] = {}
+    scores: dict[str, dict[str, list]] = {}
     for i in split.test:
         target = tensor(photos[i])
         copies = degraded(photos[i])
         copies["nearest_train"] = photos[min(split.train, key=lambda j: abs(j - i))]
         for name, image in copies.items():
             pred = tensor(image)
-            scores.setdefault(name, []).append((psnr(pred, target).item(), lpips(pred, target, net).item()))
+            soft = matched_blur(photos[i], image)[1]
+            for key, value in (("psnr", psnr(pred, target).item()), ("lpips", lpips(pred, target, net).item()),
+                               ("streak", axis_ratio(image) / axis_ratio(photos[i])),
+                               ("streak_strips", strip_ratios(image, 4) / strip_ratios(photos[i], 4)),
+                               ("streak_matched", axis_ratio(image) / axis_ratio(soft))):
+                scores.setdefault(name, {}).setdefault(key, []).append(value)
+    digits = {"psnr": 2}
     print(json.dumps({"scene": str(args.scene), "factor": args.factor, "test_frames": split.test,
-                      "scores": {k: {"psnr": round(float(np.mean([s[0] for s in v])), 2),
-                                     "lpips": round(float(np.mean([s[1] for s in v])), 3)}
-                                 for k, v in scores.items()}}))
+                      "scores": {name: {key: np.round(np.mean(values, axis=0), digits.get(key, 3)).tolist()
+                                        for key, values in by_key.items()}
+                                 for name, by_key in scores.items()}}))
 
 
 if __name__ == "__main__":

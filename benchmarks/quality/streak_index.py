@@ -4,6 +4,12 @@ columns|, divided by the same ratio of the held-out photo. 1: as isotropic as th
 (horizontal streaks); below 1: along columns. A frame is matched to the photo of the scene's `images_<factor>`
 folder with the same name, else by the index its name ends with (`image008` -> the 9th photo).
 
+`--matched` also divides by the ratio of the photo blurred as much as the render is (`render_matched`,
+`depth_matched`, `matched_sigma`): blur alone moves a photo's ratio (fern's test photos, images_4: a Gaussian blur of
+4 px raises it by 25%, 93% in the right quarter, with no streak at all; docs/results.md 34), so the plain index counts
+blur as streaks on some scenes. The blur is the Gaussian whose photo has the render's mean |d/d row|, the variation a
+smear along rows leaves (it takes the column differences); the depth map takes its render's blur.
+
 `--strips N` also gives the index of N vertical strips of equal width, left to right (each strip's ratio over the
 photo's ratio in the same strip): where across the frame the streaks are (docs/results.md, "Where the blur and the
 streaks come from", 16).
@@ -30,6 +36,36 @@ def axis_ratio(values: np.ndarray) -> float:
     return float(np.abs(np.diff(values, axis=0)).mean() / np.abs(np.diff(values, axis=1)).mean())
 
 
+def row_variation(values: np.ndarray) -> float:
+    """mean |d/d row| of an [H, W] or [H, W, C] map (channels averaged first)."""
+    values = values.astype(np.float64)
+    if values.ndim == 3:
+        values = values.mean(axis=-1)
+    return float(np.abs(np.diff(values, axis=0)).mean())
+
+
+def matched_blur(photo: np.ndarray, render: np.ndarray, max_sigma: float = 32.0) -> tuple[float, np.ndarray]:
+    """The Gaussian blur (sigma in pixels, to 0.01) after which `photo`'s mean |d/d row| is `render`'s, and the blurred
+    photo ([H, W, C] float). 0 (the photo as it is) when the render varies as much as the photo or more; `max_sigma`
+    when even that blur leaves the photo more varied. The variation falls as sigma grows (a blur never adds variation),
+    so bisection finds it."""
+    photo = photo.astype(np.float64)
+    target = row_variation(render)
+
+    def blurred(sigma: float) -> np.ndarray:
+        return cv2.GaussianBlur(photo, (0, 0), sigma) if sigma > 0 else photo
+
+    if row_variation(photo) <= target:
+        return 0.0, photo
+    low, high = 0.0, max_sigma
+    if row_variation(blurred(high)) >= target:
+        return high, blurred(high)
+    while high - low > 0.01:
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if row_variation(blurred(mid)) > target else (low, mid)
+    return high, blurred(high)
+
+
 def strip_ratios(values: np.ndarray, strips: int) -> np.ndarray:
     """`axis_ratio` of each of `strips` vertical strips of an [H, W] or [H, W, C] map, left to right: [strips]. A strip
     is the columns [i W / strips, (i + 1) W / strips); its column differences stay within it."""
@@ -41,11 +77,15 @@ def strip_ratios(values: np.ndarray, strips: int) -> np.ndarray:
     return np.array([axis_ratio(values[:, a:b]) for a, b in spans])
 
 
-def streak_index(run: Path, photos: list[Path], strips: int = 0) -> dict[str, float | list[float]]:
+def streak_index(run: Path, photos: list[Path], strips: int = 0,
+                 matched: bool = False) -> dict[str, float | list[float]]:
     """Mean streak index over the run's test frames, of the depth maps and of the renders; with `strips`, also per
-    vertical strip (`depth_strips`, `render_strips`: lists left to right)."""
+    vertical strip (`depth_strips`, `render_strips`: lists left to right); with `matched`, also against the photo
+    blurred as much as each render (`render_matched`, `depth_matched`, their `*_strips_matched` with `strips`, and
+    the mean `matched_sigma`)."""
     by_name = {p.stem: p for p in photos}
     depth, render, depth_strips, render_strips = [], [], [], []
+    extra: dict[str, list] = {}
     for path in sorted((run / "test" / "depth").glob("*.npy")):
         found = re.search(r"(\d+)$", path.stem)
         if path.stem not in by_name and (found is None or int(found.group(1)) >= len(photos)):
@@ -63,12 +103,25 @@ def streak_index(run: Path, photos: list[Path], strips: int = 0) -> dict[str, fl
             photo_strips = strip_ratios(photo, strips)
             depth_strips.append(strip_ratios(depth_map, strips) / photo_strips)
             render_strips.append(strip_ratios(rgb, strips) / photo_strips)
+        if matched:
+            sigma, soft = matched_blur(photo, rgb)
+            soft_ratio = axis_ratio(soft)
+            extra.setdefault("matched_sigma", []).append(sigma)
+            extra.setdefault("depth_matched", []).append(axis_ratio(depth_map) / soft_ratio)
+            extra.setdefault("render_matched", []).append(axis_ratio(rgb) / soft_ratio)
+            if strips:
+                soft_strips = strip_ratios(soft, strips)
+                extra.setdefault("depth_strips_matched", []).append(strip_ratios(depth_map, strips) / soft_strips)
+                extra.setdefault("render_strips_matched", []).append(strip_ratios(rgb, strips) / soft_strips)
     if not depth:
         raise SystemExit(f"{run}: no test/depth/*.npy (run `simplenerf test` on it first)")
     index = {"depth": float(np.mean(depth)), "render": float(np.mean(render)), "frames": len(depth)}
     if strips:
         index |= {"depth_strips": np.mean(depth_strips, axis=0).tolist(),
                   "render_strips": np.mean(render_strips, axis=0).tolist()}
+    for key, values in extra.items():
+        mean = np.mean(values, axis=0)
+        index[key] = mean.tolist() if mean.ndim else float(mean)
     return index
 
 
@@ -79,13 +132,15 @@ def main() -> None:
     parser.add_argument("--factor", type=int, default=8, help="the images_<factor> the runs were tested at")
     parser.add_argument("--strips", type=int, default=0,
                         help="also the index of this many vertical strips, left to right (0: the whole frame only)")
+    parser.add_argument("--matched", action="store_true",
+                        help="also against the photo blurred as much as each render (blur alone moves the ratio)")
     args = parser.parse_args()
     folder = Path(args.scene) / f"images_{args.factor}"
     photos = sorted(p for p in folder.glob("*") if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
     if not photos:
         raise SystemExit(f"{folder}: no photos")
     for run in args.runs:
-        index = streak_index(Path(run), photos, args.strips)
+        index = streak_index(Path(run), photos, args.strips, args.matched)
         print(json.dumps({"run": run, **{k: np.round(v, 3).tolist() for k, v in index.items()}}))
 
 

@@ -2,12 +2,13 @@
 and the streaks come from"): a render as blurred on the views it was trained on as on the held-out ones is an under-fit
 (budget, capacity); sharp on the training views and blurred on the others is geometry. Each view's streak index
 (`benchmarks.quality.streak_index`: the render's row / column roughness ratio over the photo's; 1: none), and its depth
-map's (`depth_streak`), are given too, so that streaks can be judged on validation views. With `--spread`, also how each
-view's rays spread their weight along the ray: the weighted standard deviation of the fine samples' NDC t (a uniform fog
-over [0, 1): 0.29; an opaque surface: about 0), the share of the weight farther than 0.05 in NDC t from the ray's
-median, and the footprint in pixels across and down the image (`ray_spread`). With `--surface`, each view is also scored
-rendered with the colour at the median of each ray's weights (`surface_render`): what the picture would be without that
-blur.
+map's (`depth_streak`), are given too, so that streaks can be judged on validation views, and both against the photo
+blurred as much as the render (`streak_matched`, `depth_streak_matched`: blur alone moves the index). With `--spread`,
+also how each view's rays spread their weight along the ray: the weighted standard deviation of the fine samples' NDC t
+(a uniform fog over [0, 1): 0.29; an opaque surface: about 0), the share of the weight farther than 0.05 in NDC t from
+the ray's median, and the footprint in pixels across and down the image (`ray_spread`). With `--surface`, each view is
+also scored rendered with the colour at the median of each ray's weights (`surface_render`): what the picture would be
+without that blur.
 
     python -m benchmarks.quality.view_scores runs/grid/fern_seed0_simplerf [--factor 4] [--frames 6,13,16] [--spread] \
         [--surface] [--out DIR] [-- CLI overrides]
@@ -29,7 +30,7 @@ import cv2
 import numpy as np
 import torch
 
-from benchmarks.quality.streak_index import axis_ratio
+from benchmarks.quality.streak_index import axis_ratio, matched_blur
 from simplenerf.commands import split_overrides
 from simplenerf.data.datasets import Frames
 from simplenerf.metrics.lpips import LPIPS
@@ -122,11 +123,14 @@ def main() -> None:
             rgb, depth = render.rgb.clamp(0, 1), render.depth
         photo = frame.rgb.reshape(frame.height, frame.width, 3)
         photo_ratio = axis_ratio(to_uint8(photo.numpy()))  # the streak index's reference
+        soft_ratio = axis_ratio(matched_blur(to_uint8(photo.numpy()), to_uint8(rgb.numpy()))[1])  # as blurred as rgb
         kind = "train" if frame.index in split.train else "test" if frame.index in split.test else "validation"
         scores = {"kind": kind, "psnr": psnr(rgb[None], photo[None]).item(),
                   "lpips": lpips(rgb[None], photo[None], net).item(),
                   "streak": axis_ratio(to_uint8(rgb.numpy())) / photo_ratio,
-                  "depth_streak": axis_ratio(depth.numpy()) / photo_ratio}
+                  "depth_streak": axis_ratio(depth.numpy()) / photo_ratio,
+                  "streak_matched": axis_ratio(to_uint8(rgb.numpy())) / soft_ratio,
+                  "depth_streak_matched": axis_ratio(depth.numpy()) / soft_ratio}
         if args.surface:
             scores |= {"surface_psnr": psnr(surface[None], photo[None]).item(),
                        "surface_lpips": lpips(surface[None], photo[None], net).item(),

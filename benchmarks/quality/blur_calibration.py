@@ -9,9 +9,9 @@ and the streaks come from"): each test photo against degraded copies of itself, 
 
     python -m benchmarks.quality.blur_calibration ../shared/data/nerf_llff_data/fern --factor 4 [--views 2]
 
-Prints one JSON line: per degradation, mean PSNR and LPIPS over the test frames (the paper's LLFF split), and the
-copy's streak index (benchmarks.quality.streak_index: the whole frame, its 4 vertical strips, and against the photo
-blurred as much; docs/results.md 34): what blur alone does to the index.
+Prints one JSON line: per degradation, mean PSNR and LPIPS over the test frames (the paper's LLFF split), and the copy's
+streak index (benchmarks.quality.streak_index: the whole frame, its 4 vertical strips, and against the photo blurred as
+much; docs/results.md, "Where the blur and the streaks come from", 35): what blur alone does to the index.
 """
 
 from __future__ import annotations

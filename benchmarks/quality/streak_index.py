@@ -4,13 +4,13 @@ columns|, divided by the same ratio of the held-out photo. 1: as isotropic as th
 (horizontal streaks); below 1: along columns. A frame is matched to the photo of the scene's `images_<factor>`
 folder with the same name, else by the index its name ends with (`image008` -> the 9th photo).
 
-`--matched` also divides by the ratio of the photo blurred as much as the render is (`render_matched`,
-`depth_matched`, `matched_sigma`): blur alone moves a photo's ratio (fern's test photos, images_4: a Gaussian blur of
-4 px raises it by 25%, 93% in the right quarter, with no streak at all; docs/results.md 34), so the plain index counts
-blur as streaks on some scenes. The blur is the Gaussian whose photo has the render's mean |d/d row|, the variation a
-smear along rows leaves (it takes the column differences); the depth map takes its render's blur. A render's noise and
-its streaks' own edges add row variation, so the blur found is if anything too small: where blur raises the photo's
-ratio (fern) the matched index is still an upper bound on the streaks.
+`--matched` also divides by the ratio of the photo blurred as much as the render is (`render_matched`, `depth_matched`,
+`matched_sigma`): blur alone moves a photo's ratio (fern's test photos, images_4: a Gaussian blur of 4 px raises it by
+25%, 93% in the right quarter, with no streak at all; docs/results.md, "Where the blur and the streaks come from", 35),
+so the plain index counts blur as streaks on some scenes. The blur is the Gaussian whose photo has the render's mean
+|d/d row|, the variation a smear along rows leaves (it takes the column differences); the depth map takes its render's
+blur. A render's noise and its streaks' own edges add row variation, so the blur found is if anything too small: where
+blur raises the photo's ratio (fern) the matched index is still an upper bound on the streaks.
 
 `--strips N` also gives the index of N vertical strips of equal width, left to right (each strip's ratio over the
 photo's ratio in the same strip): where across the frame the streaks are (docs/results.md, "Where the blur and the

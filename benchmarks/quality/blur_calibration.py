@@ -63,14 +63,15 @@ def main() -> None:
     scores: dict[str, dict[str, list]] = {}
     for i in split.test:
         target = tensor(photos[i])
+        photo_ratio, photo_strips = axis_ratio(photos[i]), strip_ratios(photos[i], 4)
         copies = degraded(photos[i])
         copies["nearest_train"] = photos[min(split.train, key=lambda j: abs(j - i))]
         for name, image in copies.items():
             pred = tensor(image)
             soft = matched_blur(photos[i], image)[1]
             for key, value in (("psnr", psnr(pred, target).item()), ("lpips", lpips(pred, target, net).item()),
-                               ("streak", axis_ratio(image) / axis_ratio(photos[i])),
-                               ("streak_strips", strip_ratios(image, 4) / strip_ratios(photos[i], 4)),
+                               ("streak", axis_ratio(image) / photo_ratio),
+                               ("streak_strips", strip_ratios(image, 4) / photo_strips),
                                ("streak_matched", axis_ratio(image) / axis_ratio(soft))):
                 scores.setdefault(name, {}).setdefault(key, []).append(value)
     digits = {"psnr": 2}

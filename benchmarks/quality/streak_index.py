@@ -30,20 +30,18 @@ import cv2
 import numpy as np
 
 
+def axis_variation(values: np.ndarray, axis: int) -> float:
+    """mean |difference between neighbours along `axis`| (0: rows, 1: columns) of an [H, W] or [H, W, C] map (channels
+    averaged first)."""
+    values = values.astype(np.float64)
+    if values.ndim == 3:
+        values = values.mean(axis=-1)
+    return float(np.abs(np.diff(values, axis=axis)).mean())
+
+
 def axis_ratio(values: np.ndarray) -> float:
     """mean |d/d row| / mean |d/d column| of an [H, W] or [H, W, C] map (channels averaged first)."""
-    values = values.astype(np.float64)
-    if values.ndim == 3:
-        values = values.mean(axis=-1)
-    return float(np.abs(np.diff(values, axis=0)).mean() / np.abs(np.diff(values, axis=1)).mean())
-
-
-def row_variation(values: np.ndarray) -> float:
-    """mean |d/d row| of an [H, W] or [H, W, C] map (channels averaged first)."""
-    values = values.astype(np.float64)
-    if values.ndim == 3:
-        values = values.mean(axis=-1)
-    return float(np.abs(np.diff(values, axis=0)).mean())
+    return axis_variation(values, 0) / axis_variation(values, 1)
 
 
 def matched_blur(photo: np.ndarray, render: np.ndarray, max_sigma: float = 32.0) -> tuple[float, np.ndarray]:
@@ -52,20 +50,21 @@ def matched_blur(photo: np.ndarray, render: np.ndarray, max_sigma: float = 32.0)
     when even that blur leaves the photo more varied. The variation falls as sigma grows (a blur never adds variation),
     so bisection finds it."""
     photo = photo.astype(np.float64)
-    target = row_variation(render)
-
-    def blurred(sigma: float) -> np.ndarray:
-        return cv2.GaussianBlur(photo, (0, 0), sigma) if sigma > 0 else photo
-
-    if row_variation(photo) <= target:
+    target = axis_variation(render, 0)
+    if axis_variation(photo, 0) <= target:
         return 0.0, photo
     low, high = 0.0, max_sigma
-    if row_variation(blurred(high)) >= target:
-        return high, blurred(high)
+    at_high = cv2.GaussianBlur(photo, (0, 0), high)
+    if axis_variation(at_high, 0) >= target:
+        return high, at_high
     while high - low > 0.01:
         mid = 0.5 * (low + high)
-        low, high = (mid, high) if row_variation(blurred(mid)) > target else (low, mid)
-    return high, blurred(high)
+        at_mid = cv2.GaussianBlur(photo, (0, 0), mid)
+        if axis_variation(at_mid, 0) > target:
+            low = mid
+        else:
+            high, at_high = mid, at_mid
+    return high, at_high
 
 
 def strip_ratios(values: np.ndarray, strips: int) -> np.ndarray:
@@ -86,8 +85,11 @@ def streak_index(run: Path, photos: list[Path], strips: int = 0,
     blurred as much as each render (`render_matched`, `depth_matched`, their `*_strips_matched` with `strips`, and
     the mean `matched_sigma`)."""
     by_name = {p.stem: p for p in photos}
-    depth, render, depth_strips, render_strips = [], [], [], []
-    extra: dict[str, list] = {}
+    per_frame: dict[str, list] = {}  # each score's value per frame, averaged below
+
+    def add(key: str, value: float | np.ndarray) -> None:
+        per_frame.setdefault(key, []).append(value)
+
     for path in sorted((run / "test" / "depth").glob("*.npy")):
         found = re.search(r"(\d+)$", path.stem)
         if path.stem not in by_name and (found is None or int(found.group(1)) >= len(photos)):
@@ -96,34 +98,31 @@ def streak_index(run: Path, photos: list[Path], strips: int = 0,
         photo = cv2.imread(str(photo_path))
         if photo is None:
             raise SystemExit(f"{photo_path}: not an image")
-        reference = axis_ratio(photo)
         depth_map = np.load(path)
-        depth.append(axis_ratio(depth_map) / reference)
         rgb = cv2.imread(str(run / "test" / "rgb" / f"{path.stem}.png"))
-        render.append(axis_ratio(rgb) / reference)
+        depth_ratio, render_ratio, reference = axis_ratio(depth_map), axis_ratio(rgb), axis_ratio(photo)
+        add("depth", depth_ratio / reference)
+        add("render", render_ratio / reference)
         if strips:
+            depth_strips, render_strips = strip_ratios(depth_map, strips), strip_ratios(rgb, strips)
             photo_strips = strip_ratios(photo, strips)
-            depth_strips.append(strip_ratios(depth_map, strips) / photo_strips)
-            render_strips.append(strip_ratios(rgb, strips) / photo_strips)
+            add("depth_strips", depth_strips / photo_strips)
+            add("render_strips", render_strips / photo_strips)
         if matched:
             sigma, soft = matched_blur(photo, rgb)
             soft_ratio = axis_ratio(soft)
-            extra.setdefault("matched_sigma", []).append(sigma)
-            extra.setdefault("depth_matched", []).append(axis_ratio(depth_map) / soft_ratio)
-            extra.setdefault("render_matched", []).append(axis_ratio(rgb) / soft_ratio)
+            add("matched_sigma", sigma)
+            add("depth_matched", depth_ratio / soft_ratio)
+            add("render_matched", render_ratio / soft_ratio)
             if strips:
                 soft_strips = strip_ratios(soft, strips)
-                extra.setdefault("depth_strips_matched", []).append(strip_ratios(depth_map, strips) / soft_strips)
-                extra.setdefault("render_strips_matched", []).append(strip_ratios(rgb, strips) / soft_strips)
-    if not depth:
+                add("depth_strips_matched", depth_strips / soft_strips)
+                add("render_strips_matched", render_strips / soft_strips)
+    if not per_frame:
         raise SystemExit(f"{run}: no test/depth/*.npy (run `simplenerf test` on it first)")
-    index = {"depth": float(np.mean(depth)), "render": float(np.mean(render)), "frames": len(depth)}
-    if strips:
-        index |= {"depth_strips": np.mean(depth_strips, axis=0).tolist(),
-                  "render_strips": np.mean(render_strips, axis=0).tolist()}
-    for key, values in extra.items():
-        mean = np.mean(values, axis=0)
-        index[key] = mean.tolist() if mean.ndim else float(mean)
+    means = {key: np.mean(values, axis=0) for key, values in per_frame.items()}
+    means = {key: mean.tolist() if mean.ndim else float(mean) for key, mean in means.items()}
+    index = {"depth": means.pop("depth"), "render": means.pop("render"), "frames": len(per_frame["depth"]), **means}
     return index
 
 

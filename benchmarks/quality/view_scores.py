@@ -122,15 +122,15 @@ def main() -> None:
                 render = model.render_frame(frame)
             rgb, depth = render.rgb.clamp(0, 1), render.depth
         photo = frame.rgb.reshape(frame.height, frame.width, 3)
-        photo_ratio = axis_ratio(to_uint8(photo.numpy()))  # the streak index's reference
-        soft_ratio = axis_ratio(matched_blur(to_uint8(photo.numpy()), to_uint8(rgb.numpy()))[1])  # as blurred as rgb
+        photo_u8, rgb_u8 = to_uint8(photo.numpy()), to_uint8(rgb.numpy())
+        photo_ratio = axis_ratio(photo_u8)  # the streak index's reference
+        soft_ratio = axis_ratio(matched_blur(photo_u8, rgb_u8)[1])  # the photo as blurred as rgb
+        rgb_ratio, depth_ratio = axis_ratio(rgb_u8), axis_ratio(depth.numpy())
         kind = "train" if frame.index in split.train else "test" if frame.index in split.test else "validation"
         scores = {"kind": kind, "psnr": psnr(rgb[None], photo[None]).item(),
                   "lpips": lpips(rgb[None], photo[None], net).item(),
-                  "streak": axis_ratio(to_uint8(rgb.numpy())) / photo_ratio,
-                  "depth_streak": axis_ratio(depth.numpy()) / photo_ratio,
-                  "streak_matched": axis_ratio(to_uint8(rgb.numpy())) / soft_ratio,
-                  "depth_streak_matched": axis_ratio(depth.numpy()) / soft_ratio}
+                  "streak": rgb_ratio / photo_ratio, "depth_streak": depth_ratio / photo_ratio,
+                  "streak_matched": rgb_ratio / soft_ratio, "depth_streak_matched": depth_ratio / soft_ratio}
         if args.surface:
             scores |= {"surface_psnr": psnr(surface[None], photo[None]).item(),
                        "surface_lpips": lpips(surface[None], photo[None], net).item(),

@@ -290,3 +290,30 @@ def test_mask_accuracy_scores_the_trained_augmentations_and_l_cfc():
         ("points", "fine", "points"), ("views", "coarse", "views"), ("cfc", "coarse", "fine")]
     assert pairs[0][1] is points and pairs[2][1] is cfc
     assert [name for name, *_ in masked_pairs(model, untrained={"points", "views"})] == ["cfc"]
+
+
+def test_ndc_extent_reaches_past_the_box_by_a_shifted_cameras_near_plane_disparity():
+    from benchmarks.quality.ndc_extent import frustum_extent, outside_share, surface_ndc
+    from simplenerf.geometry.views import Views
+
+    h, w, f, near, shift = 6, 8, 10.0, 1.0, 0.2
+    intrinsics = torch.tensor([[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]]).expand(2, 3, 3)
+    c2w = torch.eye(4)[:3].repeat(2, 1, 1)
+    c2w[1, 0, 3] = shift  # the second camera moved sideways, looking the same way
+    views = Views(images=torch.zeros(2, h, w, 3), intrinsics=intrinsics, c2w=c2w, names=["a", "b"])
+    extent = frustum_extent(views, near)
+    # the reference camera's image is NDC [-1, 1] at every depth; the moved one's reaches 2 f b / (W near) past it
+    # at the near plane (and its corners are back at +-1 at infinity)
+    torch.testing.assert_close(extent[0], torch.tensor([-1.0, 1.0, -1.0, 1.0]))
+    torch.testing.assert_close(extent[1], torch.tensor([-1.0, 1.0 + 2 * f * shift / (w * near), -1.0, 1.0]))
+    depth = np.full((h, w), 2.0)
+    xy = surface_ndc(views, 1, depth)
+    u = np.arange(w)
+    np.testing.assert_allclose(xy[0, :, 0], 2 * f / w * (shift / 2.0 + (u - (w - 1) / 2) / f), rtol=1e-5)
+    np.testing.assert_allclose(surface_ndc(views, 0, depth)[:, 0, 1], -(np.arange(h) - (h - 1) / 2) * 2 / h,
+                               rtol=1e-5)  # rows run down, NDC y up
+    # of the moved camera's columns only the rightmost lies past x = 1 (at 2 f b / (W D) + (W - 1) / W = 1.125): a box
+    # of 1.0 leaves it, one of 1.5 keeps every pixel
+    np.testing.assert_allclose(xy[:, -2:, 0], np.array([[0.875, 1.125]] * h), rtol=1e-5)
+    assert outside_share(xy, (1.0, 1.0), 2) == [0.0, pytest.approx(1 / 4)]
+    assert outside_share(xy, (1.5, 1.5), 2) == [0.0, 0.0]

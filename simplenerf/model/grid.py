@@ -7,8 +7,11 @@ in NDC, and its multi-scale planes give SimpleNeRF's points augmentation directl
 scales only.
 
 Naming, used throughout:
-- x, y, z: NDC coordinates of the sample points (`Samples.positions`); forward-facing scenes live in about
-  [-1, 1]^3 (z in [-1, 1)). Points outside the box take the border values of the planes.
+- x, y, z: NDC coordinates of the sample points (`Samples.positions`); z is in [-1, 1), x and y are [-1, 1] across
+  the reference (average) camera's image, and other cameras see past that: LLFF frames' frusta reach |x| 1.2-1.8 and
+  |y| 1.1-1.7 (docs/results.md, "Where the blur and the streaks come from", 36). The planes span
+  [-extent_x, extent_x] x [-extent_y, extent_y] x [-1, 1] (`KPlanesField(extent=...)`); points outside take the
+  border values of the planes, constant along the axis they leave by: a horizontal streak where x leaves.
 - plane: a 2D feature grid [1, C, H, W] over two of the axes: xy (W = x, H = y), xz (W = x, H = z), yz (W = y,
   H = z). Node i of an axis with n nodes sits at -1 + 2 i / (n - 1) (`align_corners=True`): values at nodes are
   exact, bilinear in between.
@@ -151,6 +154,7 @@ class KPlanesField(Field):
         depth_tv_scale: float = 1.0,
         init_range: tuple[float, float] = (0.1, 0.5),
         density_shift: float = 0.0,
+        extent: tuple[float, float] = (1.0, 1.0),
     ) -> None:
         """
         Args:
@@ -178,6 +182,11 @@ class KPlanesField(Field):
             init_range: planes are initialised uniformly in this range (K-Planes: (0.1, 0.5)).
             density_shift: added to the density MLP's output before the exponential (DVGO's "act_shift"): negative
                 values start training from nearly empty space instead of a fog in front of the cameras.
+            extent: (e_x, e_y), the planes' half-widths along NDC x and y: node 0 sits at -e, node n - 1 at +e (z
+                always spans [-1, 1]). (1, 1): the reference camera's image only, and what other cameras see past
+                its edges takes the planes' border values. TensoRF's LLFF box, also Simple-TensoRF's (the Simple-RF
+                release's LLFF loader), is (1.5, 1.67) (docs/results.md, "Where the blur and the streaks come
+                from", 36).
         """
         super().__init__()
         resolutions = [64, 128, 256] if resolutions is None else list(resolutions)
@@ -201,6 +210,11 @@ class KPlanesField(Field):
         self.density_features = density_features
         self.features, self.view_dependent, self.view_bands = features, view_dependent, view_bands
         self.tv_weight, self.depth_tv_scale, self.density_shift = tv_weight, depth_tv_scale, density_shift
+        extent = tuple(float(e) for e in extent)
+        if len(extent) != 2 or not min(extent) > 0:
+            raise ValueError(f"extent must be two positive half-widths (x, y), got {extent}")
+        self.extent = extent
+        self.register_buffer("_scale", torch.tensor([1.0 / extent[0], 1.0 / extent[1], 1.0]), persistent=False)
         self.planes = nn.ParameterList()
         for res, res_z in zip(resolutions, depth_resolutions, strict=True):
             nodes = (res, res, res_z)
@@ -222,6 +236,8 @@ class KPlanesField(Field):
         Returns:
             [P, C * scales]: per scale, the product of the three planes' interpolations; scales concatenated.
         """
+        if self.extent != (1.0, 1.0):  # plane coordinates: [-extent, extent] -> [-1, 1]
+            positions = positions * self._scale.to(positions.dtype)
         coords = [positions[:, list(axes)] for axes in PLANE_AXES]  # shared by every scale
         per_scale = []
         for scale in range(len(self.resolutions)):
@@ -282,4 +298,4 @@ class KPlanesField(Field):
     def extra_repr(self) -> str:
         return (f"resolutions={self.resolutions}, depth_resolutions={self.depth_resolutions}, "
                 f"features={self.features}, density_features={self.density_features}, "
-                f"view_dependent={self.view_dependent}")
+                f"view_dependent={self.view_dependent}, extent={self.extent}")

@@ -84,6 +84,24 @@ def test_features_at_grid_nodes_are_the_product_of_the_three_planes_node_values(
     torch.testing.assert_close(field.grid_features(points), expected, rtol=1e-6, atol=1e-7)
 
 
+def test_extent_stretches_the_planes_over_a_wider_box_and_only_past_it_are_values_constant():
+    box = KPlanesField(resolutions=[5], depth_resolutions=[3], features=4)
+    wide = KPlanesField(resolutions=[5], depth_resolutions=[3], features=4, extent=(1.5, 1.67))
+    wide.load_state_dict(box.state_dict())  # the same planes; only where their nodes sit differs
+    points = torch.tensor([[0.3, -0.7, 0.2], [-1.0, 1.0, -0.5], [0.9, 0.1, 0.9]])
+    stretched = points * torch.tensor([1.5, 1.67, 1.0])
+    torch.testing.assert_close(wide.grid_features(stretched), box.grid_features(points), rtol=1e-6, atol=1e-7)
+    # past x = 1 the unit box is constant along x (a streak); the wide box still varies until x = 1.5
+    along_x = torch.tensor([[1.0, 0.2, 0.1], [1.2, 0.2, 0.1], [1.45, 0.2, 0.1], [1.5, 0.2, 0.1], [1.9, 0.2, 0.1]])
+    assert torch.equal(box.grid_features(along_x)[1], box.grid_features(along_x)[0])
+    outside = wide.grid_features(along_x)
+    assert not torch.allclose(outside[1], outside[0]) and not torch.allclose(outside[2], outside[1])
+    torch.testing.assert_close(outside[4], outside[3], rtol=1e-6, atol=1e-7)
+    assert "extent=(1.5, 1.67)" in repr(wide)
+    with pytest.raises(ValueError, match="extent"):
+        KPlanesField(resolutions=[5], extent=(1.5, 0.0))
+
+
 def test_gradients_reach_exactly_the_corners_of_the_cells_around_a_point():
     field = KPlanesField(resolutions=[9], depth_resolutions=[5], features=3)
     # Inside x cell 2..3 (of 9 nodes), y cell 5..6, z cell 1..2 (of 5 nodes).

@@ -293,7 +293,7 @@ def test_mask_accuracy_scores_the_trained_augmentations_and_l_cfc():
 
 
 def test_ndc_extent_reaches_past_the_box_by_a_shifted_cameras_near_plane_disparity():
-    from benchmarks.quality.ndc_extent import frustum_extent, outside_share, surface_ndc
+    from benchmarks.quality.ndc_extent import frame_index, frustum_extent, outside_share, surface_ndc
     from simplenerf.geometry.views import Views
 
     h, w, f, near, shift = 6, 8, 10.0, 1.0, 0.2
@@ -317,3 +317,8 @@ def test_ndc_extent_reaches_past_the_box_by_a_shifted_cameras_near_plane_dispari
     np.testing.assert_allclose(xy[:, -2:, 0], np.array([[0.875, 1.125]] * h), rtol=1e-5)
     assert outside_share(xy, (1.0, 1.0), 2) == [0.0, pytest.approx(1 / 4)]
     assert outside_share(xy, (1.5, 1.5), 2) == [0.0, 0.0]
+    # a rendered map is matched to its frame by file name, else by the index its name ends with
+    names = ["DJI_1.JPG", "DJI_0.JPG", "x.png"]
+    assert frame_index("DJI_0", names) == 1 and frame_index("image002", names) == 2
+    with pytest.raises(SystemExit, match="image009"):
+        frame_index("image009", names)

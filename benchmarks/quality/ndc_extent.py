@@ -63,6 +63,18 @@ def outside_share(xy: np.ndarray, extent: tuple[float, float], strips: int) -> l
     return [float(outside[:, a:b].mean()) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
+def frame_index(stem: str, names: list[str]) -> int:
+    """The frame a rendered map is of: the view whose file has the map's name (its stem), else the index the name
+    ends with (`image008` -> 8), as `streak_index` matches photos."""
+    stems = [Path(name).stem for name in names]
+    if stem in stems:
+        return stems.index(stem)
+    match = re.search(r"(\d+)$", stem)
+    if match is None or int(match.group(1)) >= len(names):
+        raise SystemExit(f"cannot tell which frame {stem!r} is: no view file of that name, no frame index at its end")
+    return int(match.group(1))
+
+
 def main() -> None:
     from simplenerf.run.cli import load_for_tool
 
@@ -87,7 +99,7 @@ def main() -> None:
             raise SystemExit(f"{args.run / 'test' / 'depth'} has no .npy depth maps: run `simplenerf test` first")
         result["outside"] = {}
         for path in depths:
-            frame = int(re.search(r"(\d+)$", path.stem).group(1))
+            frame = frame_index(path.stem, scene.views.names)
             xy = surface_ndc(scene.views, frame, np.load(path))
             result["outside"][path.stem] = [round(v, 4) for v in outside_share(xy, extent, args.strips)]
     print(json.dumps(result))

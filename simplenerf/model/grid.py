@@ -13,8 +13,8 @@ Naming, used throughout:
   [-extent_x, extent_x] x [-extent_y, extent_y] x [-1, 1] (`KPlanesField(extent=...)`); points outside take the
   border values of the planes, constant along the axis they leave by: a horizontal streak where x leaves.
 - plane: a 2D feature grid [1, C, H, W] over two of the axes: xy (W = x, H = y), xz (W = x, H = z), yz (W = y,
-  H = z). Node i of an axis with n nodes sits at -1 + 2 i / (n - 1) (`align_corners=True`): values at nodes are
-  exact, bilinear in between.
+  H = z). Node i of an axis with n nodes sits at e (-1 + 2 i / (n - 1)), e the axis' extent (1 for z;
+  `align_corners=True`): values at nodes are exact, bilinear in between.
 - scale: the three planes at one resolution; the feature of a point at a scale is the Hadamard product of its three
   plane interpolations (C values); the scales' features are concatenated (K-Planes' "multiscale" features).
 - decoder: a small MLP from the features to density (through a truncated exponential, as K-Planes and Instant-NGP;
@@ -184,9 +184,8 @@ class KPlanesField(Field):
                 values start training from nearly empty space instead of a fog in front of the cameras.
             extent: (e_x, e_y), the planes' half-widths along NDC x and y: node 0 sits at -e, node n - 1 at +e (z
                 always spans [-1, 1]). (1, 1): the reference camera's image only, and what other cameras see past
-                its edges takes the planes' border values. TensoRF's LLFF box, also Simple-TensoRF's (the Simple-RF
-                release's LLFF loader), is (1.5, 1.67) (docs/results.md, "Where the blur and the streaks come
-                from", 36).
+                its edges takes the planes' border values. TensoRF's box for LLFF in NDC (its `dataLoader/llff.py`,
+                `scene_bbox`) is (1.5, 1.67) (docs/results.md, "Where the blur and the streaks come from", 36).
         """
         super().__init__()
         resolutions = [64, 128, 256] if resolutions is None else list(resolutions)

@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from benchmarks.quality.streak_index import frame_index
 from simplenerf.commands import split_overrides
 from simplenerf.geometry.rays import pixel_grid
 from simplenerf.geometry.views import Views
@@ -35,14 +35,12 @@ from simplenerf.geometry.views import Views
 def frustum_extent(views: Views, near: float) -> torch.Tensor:
     """[V, 4] (x min, x max, y min, y max) in NDC of each view's frustum: the rays through its image's four outer
     corners (pixel centres are integers, so the corners are at -0.5 and size - 0.5), at NDC t = 0 and t = 1."""
-    w, h = views.width, views.height
-    corners = torch.tensor([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
-    extents = []
-    for view in range(len(views)):
-        rays = views.rays(torch.full((4,), view), corners, near)
-        ends = torch.cat([rays.ndc_origins, rays.ndc_origins + rays.ndc_directions])[:, :2]  # [8, 2]
-        extents.append(torch.stack([ends[:, 0].min(), ends[:, 0].max(), ends[:, 1].min(), ends[:, 1].max()]))
-    return torch.stack(extents)
+    w, h, count = views.width, views.height, len(views)
+    corners = torch.tensor([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]]).repeat(count, 1)
+    rays = views.rays(torch.arange(count).repeat_interleave(4), corners, near)
+    ends = torch.stack([rays.ndc_origins, rays.ndc_origins + rays.ndc_directions], dim=1)[..., :2]  # [4 V, 2, 2]
+    ends = ends.reshape(count, 8, 2)
+    return torch.stack([ends[..., 0].amin(1), ends[..., 0].amax(1), ends[..., 1].amin(1), ends[..., 1].amax(1)], -1)
 
 
 def surface_ndc(views: Views, view: int, depth: np.ndarray) -> np.ndarray:
@@ -61,18 +59,6 @@ def outside_share(xy: np.ndarray, extent: tuple[float, float], strips: int) -> l
     outside = (np.abs(xy[..., 0]) > extent[0]) | (np.abs(xy[..., 1]) > extent[1])
     edges = np.linspace(0, xy.shape[1], strips + 1).round().astype(int)
     return [float(outside[:, a:b].mean()) for a, b in zip(edges[:-1], edges[1:], strict=True)]
-
-
-def frame_index(stem: str, names: list[str]) -> int:
-    """The frame a rendered map is of: the view whose file has the map's name (its stem), else the index the name
-    ends with (`image008` -> 8), as `streak_index` matches photos."""
-    stems = [Path(name).stem for name in names]
-    if stem in stems:
-        return stems.index(stem)
-    match = re.search(r"(\d+)$", stem)
-    if match is None or int(match.group(1)) >= len(names):
-        raise SystemExit(f"cannot tell which frame {stem!r} is: no view file of that name, no frame index at its end")
-    return int(match.group(1))
 
 
 def main() -> None:

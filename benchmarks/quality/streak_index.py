@@ -67,6 +67,18 @@ def matched_blur(photo: np.ndarray, render: np.ndarray, max_sigma: float = 32.0)
     return high, at_high
 
 
+def frame_index(stem: str, names: list[str]) -> int:
+    """Which of the scene's frames (file `names`, in order) a rendered map named `stem` is of: the file of that name
+    (its stem), else the index the name ends with (`image008` -> 8). SystemExit when neither."""
+    stems = [Path(name).stem for name in names]
+    if stem in stems:
+        return stems.index(stem)
+    found = re.search(r"(\d+)$", stem)
+    if found is None or int(found.group(1)) >= len(names):
+        raise SystemExit(f"{stem}: no frame file of that name, nor an index among the {len(names)} frames")
+    return int(found.group(1))
+
+
 def strip_ratios(values: np.ndarray, strips: int) -> np.ndarray:
     """`axis_ratio` of each of `strips` vertical strips of an [H, W] or [H, W, C] map, left to right: [strips]. A strip
     is the columns [i W / strips, (i + 1) W / strips); its column differences stay within it."""
@@ -84,17 +96,13 @@ def streak_index(run: Path, photos: list[Path], strips: int = 0,
     vertical strip (`depth_strips`, `render_strips`: lists left to right); with `matched`, also against the photo
     blurred as much as each render (`render_matched`, `depth_matched`, their `*_strips_matched` with `strips`, and
     the mean `matched_sigma`)."""
-    by_name = {p.stem: p for p in photos}
     per_frame: dict[str, list] = {}  # each score's value per frame, averaged below
 
     def add(key: str, value: float | np.ndarray) -> None:
         per_frame.setdefault(key, []).append(value)
 
     for path in sorted((run / "test" / "depth").glob("*.npy")):
-        found = re.search(r"(\d+)$", path.stem)
-        if path.stem not in by_name and (found is None or int(found.group(1)) >= len(photos)):
-            raise SystemExit(f"{path}: no photo of that name, nor an index among the {len(photos)} photos")
-        photo_path = by_name.get(path.stem) or photos[int(found.group(1))]
+        photo_path = photos[frame_index(path.stem, [p.name for p in photos])]
         photo = cv2.imread(str(photo_path))
         if photo is None:
             raise SystemExit(f"{photo_path}: not an image")

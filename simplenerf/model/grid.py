@@ -213,7 +213,6 @@ class KPlanesField(Field):
         if len(extent) != 2 or not min(extent) > 0:
             raise ValueError(f"extent must be two positive half-widths (x, y), got {extent}")
         self.extent = extent
-        self.register_buffer("_scale", torch.tensor([1.0 / extent[0], 1.0 / extent[1], 1.0]), persistent=False)
         self.planes = nn.ParameterList()
         for res, res_z in zip(resolutions, depth_resolutions, strict=True):
             nodes = (res, res, res_z)
@@ -236,7 +235,7 @@ class KPlanesField(Field):
             [P, C * scales]: per scale, the product of the three planes' interpolations; scales concatenated.
         """
         if self.extent != (1.0, 1.0):  # plane coordinates: [-extent, extent] -> [-1, 1]
-            positions = positions * self._scale.to(positions.dtype)
+            positions = positions * positions.new_tensor((1.0 / self.extent[0], 1.0 / self.extent[1], 1.0))
         coords = [positions[:, list(axes)] for axes in PLANE_AXES]  # shared by every scale
         per_scale = []
         for scale in range(len(self.resolutions)):
